@@ -1,0 +1,1 @@
+"""Services around the swarm: command line, batch simulation, tuner, dashboard, launcher."""
