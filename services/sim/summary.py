@@ -1,0 +1,100 @@
+"""summary.json of a run: the schema is documented in docs/summary-schema.md.
+
+Only simulated quantities go in, never wall-clock figures, so equal seeds give equal files.
+Files are written atomically (temporary file, then rename): a killed process leaves either the
+old file or the new one, never half of one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from world.metrics import fitness_snr
+from world.scenario import Scenario
+
+SUMMARY_SCHEMA_VERSION = 1
+
+
+def controller_label(fuzzy: bool) -> str:
+    return "fuzzy_scheduled_pid" if fuzzy else "fixed_gain_pid"
+
+
+def build_summary(
+    scenario: Scenario,
+    metrics: dict[str, object],
+    fuzzy: bool,
+    rule_count_total: int,
+    radio_sent: int,
+    radio_delivered: int,
+    comparison: dict[str, dict[str, object]] | None = None,
+) -> dict[str, object]:
+    """The summary dict of one run (metrics as produced by MetricsAccumulator.summaries)."""
+    fitness = scenario.fitness
+    abs_error = metrics.get("mean_abs_error_sum")
+    snr = (
+        None
+        if abs_error is None
+        else round(
+            float(
+                fitness_snr(
+                    float(abs_error),  # type: ignore[arg-type]
+                    rule_count_total,
+                    fitness.error_weight,
+                    fitness.rule_weight,
+                )
+            ),
+            6,
+        )
+    )
+    summary: dict[str, object] = {
+        "schema_version": SUMMARY_SCHEMA_VERSION,
+        "scenario": scenario.name,
+        "seed": scenario.seed,
+        "duration_s": scenario.duration_s,
+        "robots": list(scenario.robot_names),
+        "controller": controller_label(fuzzy),
+        "steady_state_start_s": scenario.metrics.steady_state_start_s,
+        **metrics,
+        "rule_count_total": rule_count_total if fuzzy else 0,
+        "fitness_snr_db": snr,
+        "radio": {
+            "profile": scenario.radio.profile
+            if isinstance(scenario.radio.profile, str)
+            else "custom",
+            "frames_sent": radio_sent,
+            "frames_delivered": radio_delivered,
+        },
+    }
+    if comparison is not None:
+        summary["comparison"] = comparison
+    return summary
+
+
+def _clean(value: object) -> object:
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def write_json_atomically(path: Path, data: object) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_clean(data), indent=2, sort_keys=False, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,312 @@
+"""Scenario files: YAML validated by pydantic; configs/scenarios/paper.yaml is the paper's.
+
+A scenario names the robots (one leader; followers with their formation slot, eq. 17), the
+leader's trajectory, the obstacles, initial poses, the robot's physical parameters, the
+firmware's control parameters (or a fuzzy parameter file), sensor and radio noise, the seed and
+the duration.  `load_scenario` turns every problem into a `ScenarioError` whose message names
+the file, the field and the problem.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PositiveFloat,
+    ValidationError,
+    model_validator,
+)
+
+from robot_firmware.control.controller import ControllerParams
+from robot_firmware.control.fuzzy import FuzzyRuleBase
+from robot_firmware.control.fuzzy_parameters import FuzzyParameters
+from robot_firmware.control.trajectories import (
+    CircleTrajectory,
+    LemniscateTrajectory,
+    PolylineTrajectory,
+    Trajectory,
+)
+from world.metrics import FormationLayout, MetricsConfig
+from world.physics import BodyParams
+from world.radio import PROFILES, LinkProfile
+from world.sensors import PositioningParams, SonarParams
+
+FloatArray = NDArray[np.float64]
+
+
+class ScenarioError(Exception):
+    """A scenario file that cannot be used; the message is meant for the user."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CircleSpec(_Strict):
+    kind: Literal["circle"]
+    radius_m: PositiveFloat = 1.5
+    angular_rate_radps: float = 0.35
+    centre_m: tuple[float, float] = (0.0, 0.0)
+    phase_deg: float = 0.0
+    heading_deg: float = 90.0
+
+    def build(self) -> Trajectory:
+        return CircleTrajectory(
+            radius_m=self.radius_m,
+            angular_rate_radps=self.angular_rate_radps,
+            centre_m=self.centre_m,
+            phase_rad=math.radians(self.phase_deg),
+            heading_rad=math.radians(self.heading_deg),
+        )
+
+
+class LemniscateSpec(_Strict):
+    kind: Literal["lemniscate"]
+    amplitude_m: PositiveFloat = 1.5
+    angular_rate_radps: float = 0.25
+    centre_m: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 90.0
+
+    def build(self) -> Trajectory:
+        return LemniscateTrajectory(
+            amplitude_m=self.amplitude_m,
+            angular_rate_radps=self.angular_rate_radps,
+            centre_m=self.centre_m,
+            heading_rad=math.radians(self.heading_deg),
+        )
+
+
+class PolylineSpec(_Strict):
+    kind: Literal["polyline"]
+    waypoints_m: list[tuple[float, float]] = Field(min_length=2)
+    speed_mps: PositiveFloat = 0.3
+    closed: bool = True
+    heading_deg: float = 90.0
+
+    def build(self) -> Trajectory:
+        try:
+            return PolylineTrajectory(
+                waypoints_m=tuple(self.waypoints_m),
+                speed_mps=self.speed_mps,
+                closed=self.closed,
+                heading_rad=math.radians(self.heading_deg),
+            )
+        except ValueError as exc:
+            raise ScenarioError(f"trajectory.waypoints_m: {exc}") from exc
+
+
+TrajectorySpec = Annotated[CircleSpec | LemniscateSpec | PolylineSpec, Field(discriminator="kind")]
+
+
+class PoseSpec(_Strict):
+    x_m: float
+    y_m: float
+    heading_deg: float = 90.0
+
+    def as_array(self) -> FloatArray:
+        return np.array([self.x_m, self.y_m, math.radians(self.heading_deg)])
+
+
+class SlotSpec(_Strict):
+    """Eq. 17: the follower's place in the leader's frame (x forward, y to the left)."""
+
+    distance_m: PositiveFloat
+    angle_deg: float
+
+
+class RobotSpec(_Strict):
+    name: str | None = Field(default=None, pattern=r"^[a-z][a-z0-9_-]{0,31}$")
+    role: Literal["leader", "follower"]
+    initial_pose: PoseSpec
+    slot: SlotSpec | None = None
+
+    @model_validator(mode="after")
+    def _slot_for_followers(self) -> RobotSpec:
+        if self.role == "follower" and self.slot is None:
+            raise ValueError("a follower needs a 'slot' (distance_m, angle_deg)")
+        if self.role == "leader" and self.slot is not None:
+            raise ValueError("the leader has no 'slot'")
+        return self
+
+
+class ObstacleSpec(_Strict):
+    position_m: tuple[float, float]
+    radius_m: PositiveFloat
+
+
+class SensorsSpec(_Strict):
+    sonar: SonarParams = SonarParams()
+    positioning: PositioningParams = PositioningParams()
+
+
+class RadioSpec(_Strict):
+    profile: str | LinkProfile = "ideal"
+    """A named profile (ideal, lab, lossy, bursty) or an inline link profile."""
+    broadcast_rate_hz: PositiveFloat = 20.0
+
+    @model_validator(mode="after")
+    def _known_profile(self) -> RadioSpec:
+        if isinstance(self.profile, str) and self.profile not in PROFILES:
+            raise ValueError(
+                f"unknown radio profile {self.profile!r}; known: {', '.join(sorted(PROFILES))}"
+            )
+        return self
+
+    @property
+    def link(self) -> LinkProfile:
+        return PROFILES[self.profile] if isinstance(self.profile, str) else self.profile
+
+
+class FitnessSpec(_Strict):
+    """Weights of eq. 16."""
+
+    error_weight: PositiveFloat = 1.0
+    rule_weight: float = Field(default=1e-4, ge=0.0)
+
+
+class Scenario(_Strict):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    description: str = ""
+    seed: int = Field(default=0, ge=0)
+    duration_s: PositiveFloat = 60.0
+    trajectory: TrajectorySpec
+    robots: list[RobotSpec] = Field(min_length=1)
+    obstacles: list[ObstacleSpec] = Field(default_factory=list)
+    robot_body: BodyParams = BodyParams()
+    controller: ControllerParams = ControllerParams()
+    fuzzy_parameter_file: Path | None = None
+    sensors: SensorsSpec = SensorsSpec()
+    radio: RadioSpec = RadioSpec()
+    metrics: MetricsConfig = MetricsConfig()
+    fitness: FitnessSpec = FitnessSpec()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scenario:
+        leaders = [i for i, r in enumerate(self.robots) if r.role == "leader"]
+        if len(leaders) != 1:
+            raise ValueError(f"exactly one robot must be the leader, found {len(leaders)}")
+        names = self.robot_names
+        if len(set(names)) != len(names):
+            raise ValueError(f"robot names must be unique, got {list(names)}")
+        radius = self.robot_body.body_radius_m
+        poses = [r.initial_pose for r in self.robots]
+        for i, a in enumerate(poses):
+            for j in range(i + 1, len(poses)):
+                b = poses[j]
+                if math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) < 2 * radius:
+                    raise ValueError(f"robots {names[i]} and {names[j]} start overlapping")
+            for k, obstacle in enumerate(self.obstacles):
+                gap = math.hypot(a.x_m - obstacle.position_m[0], a.y_m - obstacle.position_m[1])
+                if gap < radius + obstacle.radius_m:
+                    raise ValueError(f"robot {names[i]} starts inside obstacle {k}")
+        ticks = self.duration_s / self.controller.control_period_s
+        if ticks > 10_000_000:
+            raise ValueError("duration_s / control_period_s is over ten million ticks")
+        return self
+
+    @property
+    def robot_names(self) -> tuple[str, ...]:
+        return tuple(r.name or f"robot{i + 1}" for i, r in enumerate(self.robots))
+
+    @property
+    def leader_index(self) -> int:
+        return next(i for i, r in enumerate(self.robots) if r.role == "leader")
+
+    def layout(self) -> FormationLayout:
+        distance = [r.slot.distance_m if r.slot else 0.0 for r in self.robots]
+        angle = [math.radians(r.slot.angle_deg) if r.slot else 0.0 for r in self.robots]
+        return FormationLayout(
+            names=self.robot_names,
+            leader_index=self.leader_index,
+            slot_distance_m=np.array(distance),
+            slot_angle_rad=np.array(angle),
+        )
+
+    def initial_poses(self) -> FloatArray:
+        return np.stack([r.initial_pose.as_array() for r in self.robots])
+
+    def obstacle_arrays(self) -> tuple[FloatArray, FloatArray]:
+        centres = np.array([o.position_m for o in self.obstacles], dtype=np.float64).reshape(-1, 2)
+        radii = np.array([o.radius_m for o in self.obstacles], dtype=np.float64)
+        return centres, radii
+
+    def controller_params(self) -> ControllerParams:
+        """The firmware's parameters; geometry the scenario did not set follows the body."""
+        body = self.robot_body
+        geometry = {
+            "wheel_base_m": body.wheel_base_m,
+            "wheel_radius_m": body.wheel_radius_m,
+            "body_radius_m": body.body_radius_m,
+            "encoder_counts_per_rev": body.encoder_counts_per_rev,
+            "motor_no_load_speed_radps": body.motor_no_load_speed_radps,
+        }
+        unset = {k: v for k, v in geometry.items() if k not in self.controller.model_fields_set}
+        return self.controller.model_copy(update=unset)
+
+    def metrics_config(self) -> MetricsConfig:
+        """Metrics windows from the scenario, distances from the controller and the body."""
+        update = {
+            "apf_influence_m": self.controller.apf_influence_m,
+            "body_radius_m": self.robot_body.body_radius_m,
+        }
+        unset = {k: v for k, v in update.items() if k not in self.metrics.model_fields_set}
+        return self.metrics.model_copy(update=unset)
+
+
+def _format_validation_error(source: str, error: ValidationError) -> str:
+    lines = [f"{source}: invalid scenario ({error.error_count()} problem(s))"]
+    for item in error.errors(include_url=False):
+        where = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        lines.append(f"  {where}: {item['msg']}")
+    return "\n".join(lines)
+
+
+def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
+    """Validate an already-parsed mapping; problems raise ScenarioError."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{source}: a scenario must be a YAML mapping at the top level")
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(_format_validation_error(source, exc)) from None
+
+
+def load_scenario(path: Path) -> Scenario:
+    """Read and validate a scenario file; relative fuzzy parameter paths resolve next to it."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read scenario file ({exc.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"{path}: not valid YAML: {exc}") from None
+    scenario = parse_scenario(data, str(path))
+    fuzzy_file = scenario.fuzzy_parameter_file
+    if fuzzy_file is not None and not fuzzy_file.is_absolute():
+        resolved = (path.parent / fuzzy_file).resolve()
+        scenario = scenario.model_copy(update={"fuzzy_parameter_file": resolved})
+    return scenario
+
+
+def load_rule_base(scenario: Scenario) -> FuzzyRuleBase:
+    """The scenario's fuzzy scheduler: its parameter file, or Table 2 with even centres."""
+    if scenario.fuzzy_parameter_file is None:
+        return FuzzyParameters.table2_defaults().rule_base()
+    path = scenario.fuzzy_parameter_file
+    try:
+        return FuzzyParameters.load(path).rule_base()
+    except OSError as exc:
+        raise ScenarioError(f"fuzzy_parameter_file: cannot read {path} ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"fuzzy_parameter_file: {path} is not valid YAML: {exc}") from None
+    except ValidationError as exc:
+        raise ScenarioError(_format_validation_error(str(path), exc)) from None
