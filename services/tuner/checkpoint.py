@@ -1,0 +1,124 @@
+"""Saving and restoring an optimiser's complete run state, so a run can resume.
+
+A checkpoint holds everything the generation loop needs to continue exactly
+where it stopped: the population and its costs, algorithm-specific arrays (PSO
+velocities and personal bests, for example), the best candidate, the generation
+and evaluation counters, the convergence history, and the random generator's
+bit-generator state. Restoring all of it makes a resumed run produce the same
+result, bit for bit, as one that was never interrupted.
+
+The file is a NumPy ``.npz`` archive read without pickle. It is written to a
+temporary file in the destination folder and then moved into place with
+``os.replace``, so a crash while saving leaves the previous checkpoint intact.
+A fingerprint (algorithm, dimension, budget, parameters) is stored with the
+state; resuming with a different setup is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.tuner.evaluation import FloatArray, IntArray
+
+CHECKPOINT_FORMAT_VERSION = 1
+_AUXILIARY_PREFIX = "auxiliary__"
+
+
+class CheckpointMismatchError(ValueError):
+    """The checkpoint on disk was written by a run with a different setup."""
+
+
+@dataclass(frozen=True)
+class RunCheckpoint:
+    """Complete state of a population-based run after a finished generation."""
+
+    fingerprint: str
+    generation: int
+    positions: FloatArray
+    costs: FloatArray
+    best_x: FloatArray
+    best_cost: float
+    n_evaluations: int
+    history_n_evaluations: IntArray
+    history_best_cost: FloatArray
+    rng_state: Mapping[str, Any]
+    auxiliary: Mapping[str, FloatArray] = field(default_factory=dict)
+
+
+def json_compatible(value: object) -> object:
+    """``json.dumps`` fallback for the NumPy values found in generator states."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.integer):
+        return int(value)
+    raise TypeError(f"cannot store {type(value).__name__} in a checkpoint")
+
+
+def save_checkpoint(path: str | os.PathLike[str], checkpoint: RunCheckpoint) -> None:
+    """Write ``checkpoint`` to ``path`` atomically (temporary file, then ``os.replace``)."""
+    destination = Path(path)
+    arrays: dict[str, Any] = {
+        "format_version": np.array(CHECKPOINT_FORMAT_VERSION),
+        "fingerprint": np.array(checkpoint.fingerprint),
+        "generation": np.array(checkpoint.generation, dtype=np.int64),
+        "positions": checkpoint.positions,
+        "costs": checkpoint.costs,
+        "best_x": checkpoint.best_x,
+        "best_cost": np.array(checkpoint.best_cost, dtype=np.float64),
+        "n_evaluations": np.array(checkpoint.n_evaluations, dtype=np.int64),
+        "history_n_evaluations": checkpoint.history_n_evaluations,
+        "history_best_cost": checkpoint.history_best_cost,
+        "rng_state": np.array(json.dumps(dict(checkpoint.rng_state), default=json_compatible)),
+    }
+    for name, values in checkpoint.auxiliary.items():
+        arrays[_AUXILIARY_PREFIX + name] = values
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    file_descriptor, temporary_name = tempfile.mkstemp(
+        prefix=destination.name + ".", suffix=".tmp", dir=destination.parent
+    )
+    try:
+        with os.fdopen(file_descriptor, "wb") as stream:
+            np.savez(stream, **arrays)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary_name, destination)
+    except BaseException:
+        Path(temporary_name).unlink(missing_ok=True)
+        raise
+
+
+def load_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:
+    """Read a checkpoint written by :func:`save_checkpoint`."""
+    with np.load(path, allow_pickle=False) as archive:
+        version = int(archive["format_version"])
+        if version != CHECKPOINT_FORMAT_VERSION:
+            raise CheckpointMismatchError(
+                f"checkpoint format {version} is not supported "
+                f"(expected {CHECKPOINT_FORMAT_VERSION})"
+            )
+        auxiliary = {
+            key.removeprefix(_AUXILIARY_PREFIX): np.array(archive[key])
+            for key in archive.files
+            if key.startswith(_AUXILIARY_PREFIX)
+        }
+        return RunCheckpoint(
+            fingerprint=str(archive["fingerprint"]),
+            generation=int(archive["generation"]),
+            positions=np.array(archive["positions"], dtype=np.float64),
+            costs=np.array(archive["costs"], dtype=np.float64),
+            best_x=np.array(archive["best_x"], dtype=np.float64),
+            best_cost=float(archive["best_cost"]),
+            n_evaluations=int(archive["n_evaluations"]),
+            history_n_evaluations=np.array(archive["history_n_evaluations"], dtype=np.int64),
+            history_best_cost=np.array(archive["history_best_cost"], dtype=np.float64),
+            rng_state=json.loads(str(archive["rng_state"])),
+            auxiliary=auxiliary,
+        )

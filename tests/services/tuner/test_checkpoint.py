@@ -1,0 +1,116 @@
+"""Checkpoint and resume: an interrupted run resumes to the uninterrupted result."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from services.tuner import checkpoint as checkpoint_module
+from services.tuner.baselines import run_pso
+from services.tuner.benchmark_functions import rastrigin
+from services.tuner.checkpoint import CheckpointMismatchError, load_checkpoint
+from services.tuner.evaluation import ProgressCallback
+from services.tuner.registry import ALGORITHMS
+
+ALGORITHM_NAMES = sorted(ALGORITHMS)
+
+
+class SimulatedKillError(Exception):
+    """Stands in for a killed process."""
+
+
+def interrupt_at(generation: int) -> ProgressCallback:
+    def progress(current: int, n_evaluations: int, best_cost: float) -> None:
+        if current == generation:
+            raise SimulatedKillError
+
+    return progress
+
+
+@pytest.mark.parametrize("name", ALGORITHM_NAMES)
+def test_resumed_run_equals_uninterrupted_run(name: str, tmp_path: Path) -> None:
+    run = ALGORITHMS[name]
+    uninterrupted = run(rastrigin, 4, 1010, 17)
+
+    path = tmp_path / f"{name}.npz"
+    with pytest.raises(SimulatedKillError):
+        run(rastrigin, 4, 1010, 17, path, interrupt_at(8), checkpoint_every=3)
+    saved = load_checkpoint(path)
+    assert saved.generation == 6
+    assert len(saved.history_best_cost) == 7
+
+    evaluated_after_resume: list[int] = []
+
+    def counting_rastrigin(candidates: np.ndarray) -> np.ndarray:
+        evaluated_after_resume.append(candidates.shape[0])
+        return rastrigin(candidates)
+
+    resumed = run(counting_rastrigin, 4, 1010, 17, path, checkpoint_every=3)
+    assert resumed.same_as(uninterrupted)
+    assert sum(evaluated_after_resume) == 1010 - saved.n_evaluations
+    assert load_checkpoint(path).generation == uninterrupted.n_generations
+
+
+def test_finished_checkpoint_returns_the_result_without_evaluating(tmp_path: Path) -> None:
+    path = tmp_path / "ofa.npz"
+    finished = ALGORITHMS["ofa"](rastrigin, 3, 300, 1, path)
+
+    def must_not_run(candidates: np.ndarray) -> np.ndarray:
+        raise AssertionError("a finished run must not evaluate again")
+
+    assert ALGORITHMS["ofa"](must_not_run, 3, 300, 1, path).same_as(finished)
+
+
+def test_checkpoint_of_a_different_run_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "ga.npz"
+    ALGORITHMS["ga"](rastrigin, 3, 300, 1, path)
+    with pytest.raises(CheckpointMismatchError):
+        ALGORITHMS["ga"](rastrigin, 3, 400, 1, path)
+    with pytest.raises(CheckpointMismatchError):
+        ALGORITHMS["pso"](rastrigin, 3, 300, 1, path)
+    with pytest.raises(CheckpointMismatchError):
+        ALGORITHMS["ga"](rastrigin, 3, 300, 2, path)
+
+
+def test_failed_save_keeps_the_previous_checkpoint_and_leaves_no_temporary_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "fa.npz"
+    with pytest.raises(SimulatedKillError):
+        ALGORITHMS["fa"](rastrigin, 3, 2000, 4, path, interrupt_at(2), checkpoint_every=1)
+    before = path.read_bytes()
+
+    def failing_savez(*args: object, **kwargs: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(checkpoint_module.np, "savez", failing_savez)
+    with pytest.raises(OSError, match="disk full"):
+        ALGORITHMS["fa"](rastrigin, 3, 2000, 4, path, checkpoint_every=1)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fa.npz"]
+
+
+def test_checkpoint_holds_the_generator_state_of_its_generation(tmp_path: Path) -> None:
+    path = tmp_path / "pso.npz"
+    rng = np.random.default_rng(8)
+    state_at_generation_5: dict[str, object] = {}
+
+    def capture_then_stop(generation: int, n_evaluations: int, best_cost: float) -> None:
+        if generation == 5:
+            state_at_generation_5.update(rng.bit_generator.state)
+            raise SimulatedKillError
+
+    with pytest.raises(SimulatedKillError):
+        run_pso(
+            rastrigin,
+            3,
+            1000,
+            rng,
+            checkpoint_path=path,
+            checkpoint_every=5,
+            progress=capture_then_stop,
+        )
+    saved = load_checkpoint(path)
+    assert saved.generation == 5
+    assert dict(saved.rng_state) == state_at_generation_5
+    assert set(saved.auxiliary) == {"velocities", "personal_best_positions", "personal_best_costs"}

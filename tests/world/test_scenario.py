@@ -1,0 +1,88 @@
+from pathlib import Path
+
+import pytest
+import yaml
+
+from world.scenario import ScenarioError, load_rule_base, load_scenario, parse_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+def _paper_data() -> dict:
+    return yaml.safe_load(PAPER.read_text())
+
+
+def test_paper_scenario_is_the_papers_experiment() -> None:
+    scenario = load_scenario(PAPER)
+    assert scenario.robot_names == ("robot1", "robot2", "robot3")
+    assert scenario.leader_index == 0
+    traj = scenario.trajectory
+    assert traj.kind == "circle" and traj.radius_m == 1.5 and traj.angular_rate_radps == 0.35
+    assert scenario.robot_body.wheel_base_m == 0.25
+    assert scenario.robot_body.wheel_radius_m == 0.0508
+    assert len(scenario.obstacles) == 1
+    params = scenario.controller_params()
+    assert params.wheel_radius_m == scenario.robot_body.wheel_radius_m
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "expected"),
+    [
+        (("robots", 1, "slot", "distance_m"), -1.0, "robots.1.slot.distance_m"),
+        (("trajectory", "kind"), "spiral", "trajectory"),
+        (("controller", "kp"), [1.0, 2.0], "controller.kp"),
+        (("radio", "profile"), "moon", "unknown radio profile"),
+        (("sensors", "sonar", "noise_std_m"), "loud", "sensors.sonar.noise_std_m"),
+        (("duration_s",), 0, "duration_s"),
+        (("robot_body", "wheel_radius"), 0.05, "robot_body.wheel_radius"),
+    ],
+)
+def test_bad_field_is_named_in_the_error(path: tuple, value: object, expected: str) -> None:
+    data = _paper_data()
+    node = data
+    for key in path[:-1]:
+        node = node[key] if isinstance(node, list) else node.setdefault(key, {})
+    node[path[-1]] = value
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(data, "bad.yaml")
+    assert expected in str(info.value)
+    assert str(info.value).startswith("bad.yaml")
+
+
+def test_structural_problems_are_explained() -> None:
+    data = _paper_data()
+    data["robots"][1]["role"] = "leader"
+    data["robots"][1].pop("slot")
+    with pytest.raises(ScenarioError, match="exactly one robot must be the leader"):
+        parse_scenario(data)
+    data = _paper_data()
+    data["robots"][2]["initial_pose"] = data["robots"][1]["initial_pose"]
+    with pytest.raises(ScenarioError, match="start overlapping"):
+        parse_scenario(data)
+    with pytest.raises(ScenarioError, match="mapping"):
+        parse_scenario(["not", "a", "mapping"])
+
+
+def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
+    with pytest.raises(ScenarioError, match="cannot read"):
+        load_scenario(tmp_path / "missing.yaml")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("name: [unclosed\n")
+    with pytest.raises(ScenarioError, match="not valid YAML"):
+        load_scenario(broken)
+
+
+def test_fuzzy_parameter_file_resolves_next_to_the_scenario(tmp_path: Path) -> None:
+    data = _paper_data()
+    data["fuzzy_parameter_file"] = "fuzzy.yaml"
+    (tmp_path / "fuzzy.yaml").write_text(
+        "error_centres: [-1.0, 0.0, 1.0]\nrate_centres: [-1.0, -0.2, 0.2, 1.0]\n"
+    )
+    scenario_file = tmp_path / "s.yaml"
+    scenario_file.write_text(yaml.safe_dump(data))
+    rule_base = load_rule_base(load_scenario(scenario_file))
+    assert int(rule_base.rule_count) == 12
+    (tmp_path / "fuzzy.yaml").write_text("error_centres: [1.0, 0.0]\nrate_centres: [-1, 1]\n")
+    with pytest.raises(ScenarioError, match="error_centres"):
+        load_rule_base(load_scenario(scenario_file))
