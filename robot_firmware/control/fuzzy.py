@@ -12,8 +12,9 @@ path gathers those four instead of forming the full outer product, and `infer_fu
 keeps the literal eq. 6-7 form for tests.
 
 Table 2 is kept as printed: rows are e, columns are ė, cells are the output ΔK, a singleton on
-[-1, 1] (NB = -1 ... PB = +1).  Its cell (e=NM, ė=NS) = PM breaks the point symmetry that the
-rest of the table has ((PM, PS) = PB); DESIGN.md §6 keeps the printed value.
+[-1, 1] (NB = -1 ... PB = +1).  Everywhere else the table is point symmetric,
+ΔK(e, ė) = ΔK(-e, -ė); its cell (e=NM, ė=NS) = PM breaks that against (PM, PS) = PB.
+DESIGN.md §6 keeps the printed value.
 
 Parameters that an optimiser tunes (the paper's Firefly = {c_i, w_i, K}): the centres of each
 input's sets (widths follow from them by the half-overlap rule) and the number of sets per
