@@ -63,13 +63,17 @@ def sonar_gaps(
     uy = np.sin(beam)[..., :, None]
     tx = to_target[..., None, :, 0]
     ty = to_target[..., None, :, 1]
-    along = tx * ux + ty * uy  # (..., S, T)
-    across = ux * ty - uy * tx
-    dist = np.hypot(tx, ty)
-    off_axis = np.abs(np.arctan2(across, along))
-    edge = np.maximum(off_axis - params.beam_half_width_rad, 0.0)
-    edge_along = dist * np.cos(edge)
-    edge_miss = dist * np.sin(edge)
+    along = tx * ux + ty * uy  # (..., S, T): d·cos(off-axis angle)
+    across = np.abs(ux * ty - uy * tx)  # d·sin(off-axis angle)
+    # Rotate the target's direction onto the cone's nearer edge: d·sin(off - hw) is how far the
+    # centre lies from the edge ray (negative: inside the cone), d·cos(off - hw) how far along.
+    cos_hw = np.cos(params.beam_half_width_rad)
+    sin_hw = np.sin(params.beam_half_width_rad)
+    edge_miss = across * cos_hw - along * sin_hw
+    inside = edge_miss <= 0.0
+    dist = np.sqrt(tx * tx + ty * ty)
+    edge_along = np.where(inside, dist, along * cos_hw + across * sin_hw)
+    edge_miss = np.where(inside, 0.0, edge_miss)
     radius = target_radii_m[..., None, :]
     hit = (edge_miss < radius) & (edge_along > 0.0) & target_valid[..., None, :]
     chord = np.sqrt(np.maximum(radius * radius - edge_miss * edge_miss, 0.0))

@@ -114,16 +114,26 @@ class RobotRole:
 
 @dataclass(frozen=True)
 class ControllerState:
+    """What a robot's control software remembers between ticks.
+
+    echo_points_m / echo_valid (..., S, 2) / (..., S): the obstacle points of the last sonar
+    sweep in world coordinates, kept until the next sweep.
+    """
+
     estimator: EstimatorState
     pid: PidState
     avoidance_offset_m: FloatArray
+    echo_points_m: FloatArray
+    echo_valid: BoolArray
 
     @staticmethod
-    def initial(batch_shape: tuple[int, ...]) -> ControllerState:
+    def initial(batch_shape: tuple[int, ...], sonar_count: int) -> ControllerState:
         return ControllerState(
             estimator=EstimatorState.unlocalised(batch_shape),
             pid=PidState.zeros(batch_shape),
             avoidance_offset_m=np.zeros(batch_shape + (2,)),
+            echo_points_m=np.zeros(batch_shape + (sonar_count, 2)),
+            echo_valid=np.zeros(batch_shape + (sonar_count,), dtype=bool),
         )
 
 
@@ -131,7 +141,8 @@ class ControllerState:
 class ControlInputs:
     """What the firmware has read by the start of a tick.
 
-    sonar_range_m is the latest gap reading of each transducer (inf: no echo).  peer_* arrays
+    sonar_range_m is the latest gap reading of each transducer (inf: no echo), and
+    sonar_fresh says whether it arrived since the previous tick.  peer_* arrays
     hold the last state each peer broadcast and when it was stamped; reference_* is the
     trajectory at t_s (used by the leader only).
     """
@@ -141,6 +152,7 @@ class ControlInputs:
     fix_pose: FloatArray
     fix_valid: BoolArray
     sonar_range_m: FloatArray
+    sonar_fresh: bool
     peer_pose: FloatArray
     peer_rate: FloatArray
     peer_stamp_s: FloatArray
@@ -163,6 +175,36 @@ class ControlOutputs:
     kd: FloatArray
     repulsion_mps: FloatArray
     active: BoolArray
+
+
+def sonar_echo_points(
+    pose: FloatArray,
+    sonar_range_m: FloatArray,
+    peer_pose: FloatArray,
+    peer_ok: BoolArray,
+    params: ControllerParams,
+) -> tuple[FloatArray, BoolArray]:
+    """Level 2: a sonar sweep as obstacle points in the world (..., S, 2) and their validity.
+
+    Echoes within the APF influence distance count; an echo that lands on a peer whose position
+    is known from the radio is left to the robot-robot term.
+    """
+    beam_world = pose[..., 2:3] + np.asarray(params.sonar_beam_angles_rad)
+    echo = np.isfinite(sonar_range_m) & (sonar_range_m <= params.apf_influence_m)
+    reach = params.body_radius_m + np.where(echo, sonar_range_m, 0.0)
+    points = np.stack(
+        (
+            pose[..., None, 0] + reach * np.cos(beam_world),
+            pose[..., None, 1] + reach * np.sin(beam_world),
+        ),
+        axis=-1,
+    )
+    to_peer = points[..., :, None, :] - peer_pose[..., None, :, :2]
+    near_peer = np.hypot(to_peer[..., 0], to_peer[..., 1]) < (
+        params.body_radius_m + params.sonar_peer_margin_m
+    )
+    explained = np.any(near_peer & peer_ok[..., None, :], axis=-1)
+    return points, echo & ~explained
 
 
 def control_step(
@@ -194,9 +236,9 @@ def control_step(
     peer_pose = inputs.peer_pose + inputs.peer_rate * lead_time_s[..., None]
     leader_mask = peer_ok & inputs.peer_is_leader
     leader_known = np.any(leader_mask, axis=-1)
-    leader_index = np.argmax(leader_mask, axis=-1)[..., None, None]
-    leader_pose = np.take_along_axis(peer_pose, leader_index, axis=-2)[..., 0, :]
-    leader_rate = np.take_along_axis(inputs.peer_rate, leader_index, axis=-2)[..., 0, :]
+    first_leader = (leader_mask & (np.cumsum(leader_mask, axis=-1) == 1))[..., None]
+    leader_pose = np.sum(np.where(first_leader, peer_pose, 0.0), axis=-2)
+    leader_rate = np.sum(np.where(first_leader, inputs.peer_rate, 0.0), axis=-2)
     slot_pose, slot_rate = follower_reference(
         leader_pose, leader_rate, pose, role.slot_distance_m, role.slot_angle_rad
     )
@@ -217,22 +259,18 @@ def control_step(
         params.apf_influence_m,
         params.apf_min_gap_m,
     )
-    beams = np.asarray(params.sonar_beam_angles_rad)
-    beam_world = theta[..., None] + beams
-    beam_dir = np.stack((np.cos(beam_world), np.sin(beam_world)), axis=-1)
-    gap = inputs.sonar_range_m
-    echo = np.isfinite(gap) & (gap <= params.apf_influence_m)
-    reach = params.body_radius_m + np.where(echo, gap, 0.0)
-    echo_point = pose[..., None, :2] + reach[..., None] * beam_dir
-    to_peer = echo_point[..., :, None, :] - peer_pose[..., None, :, :2]
-    near_peer = np.hypot(to_peer[..., 0], to_peer[..., 1]) < (
-        params.body_radius_m + params.sonar_peer_margin_m
-    )
-    explained = np.any(near_peer & peer_ok[..., None, :], axis=-1)
+    if inputs.sonar_fresh:
+        echo_points, echo_valid = sonar_echo_points(
+            pose, inputs.sonar_range_m, peer_pose, peer_ok, params
+        )
+    else:
+        echo_points, echo_valid = state.echo_points_m, state.echo_valid
+    from_echo = pose[..., None, :2] - echo_points
+    echo_distance = np.hypot(from_echo[..., 0], from_echo[..., 1])
     force = force + repulsive_force(
-        -beam_dir,
-        gap,
-        echo & ~explained,
+        from_echo / np.maximum(echo_distance, 1e-9)[..., None],
+        echo_distance - params.body_radius_m,
+        echo_valid,
         params.apf_obstacle_gain,
         params.apf_influence_m,
         params.apf_min_gap_m,
@@ -280,7 +318,13 @@ def control_step(
     )
     wheel = np.where(active[..., None], wheel, 0.0)
     duty = np.clip(wheel / params.motor_no_load_speed_radps, -1.0, 1.0)
-    new_state = ControllerState(estimator=est, pid=pid, avoidance_offset_m=offset)
+    new_state = ControllerState(
+        estimator=est,
+        pid=pid,
+        avoidance_offset_m=offset,
+        echo_points_m=echo_points,
+        echo_valid=echo_valid,
+    )
     outputs = ControlOutputs(
         wheel_speed_radps=wheel,
         duty=duty,

@@ -27,6 +27,7 @@ are +inf and never become active).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -156,6 +157,24 @@ class FuzzyRuleBase:
             rule_outputs=np.stack([r.rule_outputs for r in rule_bases]),
         )
 
+    @cached_property
+    def error_lookup(self) -> _CentreLookup:
+        return _centre_lookup(self.error_centres, self.error_set_count)
+
+    @cached_property
+    def rate_lookup(self) -> _CentreLookup:
+        return _centre_lookup(self.rate_centres, self.rate_set_count)
+
+    @cached_property
+    def flat_rule_outputs(self) -> FloatArray:
+        return np.ascontiguousarray(self.rule_outputs).reshape(-1)
+
+    @cached_property
+    def rule_table_base(self) -> IntArray:
+        batch_shape = self.rule_outputs.shape[:-2]
+        count = int(np.prod(batch_shape, dtype=np.int64))
+        return np.arange(count, dtype=np.int64).reshape(batch_shape) * MAX_SETS**2
+
     def expand_dims(self, axes: tuple[int, ...]) -> FuzzyRuleBase:
         """Insert broadcast axes after the batch axes (e.g. robot and control-axis axes)."""
 
@@ -172,38 +191,69 @@ class FuzzyRuleBase:
         )
 
 
-def _active_pair(
-    x: FloatArray, centres: FloatArray, set_count: IntArray
-) -> tuple[IntArray, FloatArray]:
+@dataclass(frozen=True)
+class _CentreLookup:
+    """Centres of a batch of schedulers laid end to end for one `searchsorted`.
+
+    Scheduler r's centres are shifted by r·spread so that the concatenation is sorted; padding
+    repeats the last centre.  Inputs are clipped to their own scheduler's [first, last].
+    """
+
+    keys: FloatArray
+    values: FloatArray
+    shift: FloatArray
+    key_base: IntArray
+    last_pair: IntArray
+    first: FloatArray
+    below_last: FloatArray
+
+
+def _centre_lookup(centres: FloatArray, set_count: IntArray) -> _CentreLookup:
+    batch_shape = centres.shape[:-1]
+    count = np.broadcast_to(set_count, batch_shape)
+    last = np.take_along_axis(centres, (count - 1)[..., None], axis=-1)[..., 0]
+    padded = np.where(np.isfinite(centres), centres, last[..., None])
+    spread = float(np.max(padded) - np.min(padded)) + 1.0
+    index = np.arange(int(np.prod(batch_shape, dtype=np.int64))).reshape(batch_shape)
+    shift = index * spread
+    return _CentreLookup(
+        keys=(padded + shift[..., None]).reshape(-1),
+        values=padded.reshape(-1).astype(np.float64),
+        shift=np.asarray(shift, dtype=np.float64),
+        key_base=np.asarray(index * MAX_SETS, dtype=np.int64),
+        last_pair=np.asarray(index * MAX_SETS + count - 2, dtype=np.int64),
+        first=np.asarray(padded[..., 0], dtype=np.float64),
+        below_last=np.nextafter(last, -np.inf),
+    )
+
+
+def _active_pair(x: FloatArray, lookup: _CentreLookup) -> tuple[IntArray, FloatArray]:
     """Index k of the left active set and the membership of set k+1 (set k has 1 - that)."""
-    shape = np.broadcast_shapes(x.shape, centres.shape[:-1], np.shape(set_count))
-    c = np.broadcast_to(centres, shape + (MAX_SETS,))
-    n = np.broadcast_to(set_count, shape)
-    first = c[..., 0]
-    last = np.take_along_axis(c, (n - 1)[..., None], axis=-1)[..., 0]
-    xc = np.minimum(np.maximum(x, first), last)
-    k = np.count_nonzero(c <= xc[..., None], axis=-1) - 1
-    k = np.minimum(k, n - 2)
-    ck = np.take_along_axis(c, k[..., None], axis=-1)[..., 0]
-    ck1 = np.take_along_axis(c, (k + 1)[..., None], axis=-1)[..., 0]
-    mu_right = (xc - ck) / (ck1 - ck)
-    return k.astype(np.int64), mu_right
+    xc = np.minimum(np.maximum(x, lookup.first), lookup.below_last)
+    query = xc + lookup.shift
+    g = np.searchsorted(lookup.keys, query, side="right") - 1
+    # The shift can round a query onto a neighbouring key; keep it inside its own scheduler.
+    g = np.minimum(np.maximum(g, lookup.key_base), lookup.last_pair)
+    # Memberships from the unshifted centres, so a scheduler's output does not depend on where
+    # it sits in the batch.
+    ck = lookup.values[g]
+    ck1 = lookup.values[g + 1]
+    mu_right = np.minimum(np.maximum((xc - ck) / (ck1 - ck), 0.0), 1.0)
+    return np.asarray(g - lookup.key_base, dtype=np.int64), mu_right
 
 
 def infer(rule_base: FuzzyRuleBase, error_norm: FloatArray, rate_norm: FloatArray) -> FloatArray:
     """ΔK for normalised inputs (eqs. 6-7), gathering only the four rules that fire."""
-    ke, me = _active_pair(error_norm, rule_base.error_centres, rule_base.error_set_count)
-    kd, md = _active_pair(rate_norm, rule_base.rate_centres, rule_base.rate_set_count)
-    flat = rule_base.rule_outputs.reshape(rule_base.rule_outputs.shape[:-2] + (MAX_SETS**2,))
-    base = ke * MAX_SETS + kd
-    idx = np.stack((base, base + 1, base + MAX_SETS, base + MAX_SETS + 1), axis=-1)
-    flat_b = np.broadcast_to(flat, idx.shape[:-1] + (MAX_SETS**2,))
-    y = np.take_along_axis(flat_b, idx, axis=-1)
+    ke, me = _active_pair(error_norm, rule_base.error_lookup)
+    kd, md = _active_pair(rate_norm, rule_base.rate_lookup)
+    flat = rule_base.flat_rule_outputs
+    base = rule_base.rule_table_base + ke * MAX_SETS + kd
     le = 1.0 - me
     ld = 1.0 - md
     # The four activations sum to one (half overlap), so eq. 6's denominator is 1.
     return np.asarray(
-        le * ld * y[..., 0] + le * md * y[..., 1] + me * ld * y[..., 2] + me * md * y[..., 3],
+        le * (ld * flat[base] + md * flat[base + 1])
+        + me * (ld * flat[base + MAX_SETS] + md * flat[base + MAX_SETS + 1]),
         dtype=np.float64,
     )
 

@@ -224,7 +224,7 @@ def run_batch(
     )  # (N, M + N): a robot's sonar does not see itself
 
     bodies = BodyState.at_rest(np.broadcast_to(scenario.initial_poses(), b + (n, 3)).copy())
-    state = ControllerState.initial(b + (n,))
+    state = ControllerState.initial(b + (n,), len(beams))
     radio = BatchRadio(
         b, n, scenario.radio.link, 1.0 / scenario.radio.broadcast_rate_hz, shared_noise
     )
@@ -250,7 +250,8 @@ def run_batch(
         fix_due = k % fix_every == 0
         if fix_due:
             fix_pose = pose_fix(bodies.pose, rng.standard_normal(noise_b + (n, 3)), fix_params)
-        if k % sonar_every == 0:
+        sonar_due = k % sonar_every == 0
+        if sonar_due:
             targets = np.concatenate(
                 [np.broadcast_to(obstacle_centres, b + (m, 2)), bodies.pose[..., :2]], axis=-2
             )
@@ -272,6 +273,7 @@ def run_batch(
             fix_pose=fix_pose,
             fix_valid=np.broadcast_to(fix_due, b + (n,)) if fix_due else no_fix,
             sonar_range_m=sonar_gap,
+            sonar_fresh=sonar_due,
             peer_pose=peer[..., :3],
             peer_rate=peer[..., 3:],
             peer_stamp_s=radio.peer_stamp_s,
