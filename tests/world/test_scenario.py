@@ -86,3 +86,10 @@ def test_fuzzy_parameter_file_resolves_next_to_the_scenario(tmp_path: Path) -> N
     (tmp_path / "fuzzy.yaml").write_text("error_centres: [1.0, 0.0]\nrate_centres: [-1, 1]\n")
     with pytest.raises(ScenarioError, match="error_centres"):
         load_rule_base(load_scenario(scenario_file))
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs" / "scenarios").glob("*.yaml")))
+def test_every_shipped_scenario_loads(path: Path) -> None:
+    scenario = load_scenario(path)
+    assert scenario.name == path.stem
+    assert len(scenario.robot_names) >= 1

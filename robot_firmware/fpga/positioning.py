@@ -1,0 +1,203 @@
+"""Indoor positioning receiver IP: global pose fixes from the lab's tracking system (DESIGN §4).
+
+The world delivers fixes through `hw_set_fix` (about 20 Hz, millimetre noise) and can
+cut them. Units: X_UM and Y_UM are signed micrometres in the world frame (saturating
+at +/-2**31 um, about 2.1 km); HEADING_URAD is signed microradians in (-pi, pi].
+
+A fix is new when its `stamp_ns` differs from the last accepted one, so the world may
+repeat the current fix in every sense message. A new fix updates X/Y/HEADING, SEQ
+increments, VALID is set, NEW_FIX is raised and AGE_MS restarts from 0. A fix marked
+invalid (or `hw_cut_fix`) clears VALID and raises LOST, keeping the last position. A
+fix with a non-finite number is dropped and counted in REJECTED. When no new fix has
+come for STALE_MS, VALID clears by itself and LOST is raised.
+
+To read a consistent fix a driver reads SEQ, the pose, then SEQ again, and retries if
+the two differ.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from robot_firmware.fpga.registers import (
+    WORD_BITS,
+    WORD_MASK,
+    Access,
+    Field,
+    Peripheral,
+    Register,
+    as_unsigned32,
+)
+
+UM_PER_M = 1_000_000
+URAD_PER_RAD = 1_000_000
+NS_PER_MS = 1_000_000
+RESET_STALE_MS = 500
+_INT32_MAX = (1 << (WORD_BITS - 1)) - 1
+_INT32_MIN = -(1 << (WORD_BITS - 1))
+
+
+@dataclass(frozen=True)
+class PositionFix:
+    """One pose fix as the tracking system sends it."""
+
+    x_m: float
+    y_m: float
+    heading_rad: float
+    stamp_ns: int
+    valid: bool = True
+
+
+X_UM = Register(
+    "X_UM",
+    0x00,
+    Access.RO,
+    0,
+    (Field("UM", 31, 0, "signed micrometres, world frame"),),
+    "x of the last fix.",
+)
+Y_UM = Register(
+    "Y_UM",
+    0x04,
+    Access.RO,
+    0,
+    (Field("UM", 31, 0, "signed micrometres, world frame"),),
+    "y of the last fix.",
+)
+HEADING_URAD = Register(
+    "HEADING_URAD",
+    0x08,
+    Access.RO,
+    0,
+    (Field("URAD", 31, 0, "signed microradians in (-pi, pi]"),),
+    "Heading of the last fix.",
+)
+SEQ = Register(
+    "SEQ",
+    0x0C,
+    Access.RO,
+    0,
+    (Field("SEQ", 31, 0, "increments on every new fix, wraps"),),
+    "Fix sequence counter.",
+)
+STATUS = Register(
+    "STATUS",
+    0x10,
+    Access.RO,
+    0,
+    (Field("VALID", 0, 0, "the last fix is usable: not cut, not stale"),),
+    "Receiver state.",
+)
+EVENTS = Register(
+    "EVENTS",
+    0x14,
+    Access.RC,
+    0,
+    (
+        Field("NEW_FIX", 0, 0, "a new fix arrived"),
+        Field("LOST", 1, 1, "VALID went from 1 to 0"),
+    ),
+    "Receiver events; a read returns and clears them.",
+)
+AGE_MS = Register(
+    "AGE_MS",
+    0x18,
+    Access.RO,
+    WORD_MASK,
+    (Field("MS", 31, 0, "milliseconds since the last new fix; all ones before the first"),),
+    "Age of the last fix.",
+)
+STALE_MS = Register(
+    "STALE_MS",
+    0x1C,
+    Access.RW,
+    RESET_STALE_MS,
+    (Field("MS", 15, 0, "milliseconds; 0 = never stale"),),
+    "VALID clears when no new fix has come for this long.",
+)
+REJECTED = Register(
+    "REJECTED",
+    0x20,
+    Access.RO,
+    0,
+    (Field("COUNT", 31, 0, "fixes dropped for non-finite values, wraps"),),
+    "Number of malformed fixes.",
+)
+
+REGISTERS = (X_UM, Y_UM, HEADING_URAD, SEQ, STATUS, EVENTS, AGE_MS, STALE_MS, REJECTED)
+
+
+def wrap_angle_rad(angle_rad: float) -> float:
+    """`angle_rad` wrapped to (-pi, pi]."""
+    wrapped = math.remainder(angle_rad, math.tau)
+    return math.pi if wrapped <= -math.pi else wrapped
+
+
+def _saturate_int32(value: float) -> int:
+    return min(max(round(value), _INT32_MIN), _INT32_MAX)
+
+
+class PositioningReceiver(Peripheral):
+    """Latest pose fix of the indoor tracking system, with validity and age."""
+
+    TITLE = "Indoor positioning receiver"
+    SUMMARY = (
+        "Pose fixes from the lab tracking system: X_UM, Y_UM in signed micrometres, "
+        "HEADING_URAD in signed microradians within (-pi, pi]. SEQ increments on each new fix; "
+        "VALID clears when the world cuts the fixes or none has come for STALE_MS. Read SEQ "
+        "before and after the pose and retry if it changed."
+    )
+
+    def __init__(self, name: str = "positioning") -> None:
+        super().__init__(name, REGISTERS)
+        self._last_stamp_ns: int | None = None
+        self._age_ns: int | None = None
+        self._valid = False
+
+    def tick(self, dt_ns: int) -> None:
+        if self._age_ns is None:
+            return
+        self._age_ns += dt_ns
+        self._store(AGE_MS, min(self._age_ns // NS_PER_MS, WORD_MASK))
+        stale_ms = self._get(STALE_MS)
+        if self._valid and stale_ms and self._age_ns >= stale_ms * NS_PER_MS:
+            self._set_valid(False)
+
+    # -- hardware side ---------------------------------------------------------------
+
+    def hw_set_fix(self, fix: PositionFix) -> None:
+        """Deliver a fix from the tracking system (or its loss, when `fix.valid` is False)."""
+        if not fix.valid:
+            self._set_valid(False)
+            return
+        if not all(math.isfinite(v) for v in (fix.x_m, fix.y_m, fix.heading_rad)):
+            self._store(REJECTED, (self._get(REJECTED) + 1) & WORD_MASK)
+            return
+        if fix.stamp_ns == self._last_stamp_ns:
+            return
+        self._last_stamp_ns = fix.stamp_ns
+        self._store(X_UM, as_unsigned32(_saturate_int32(fix.x_m * UM_PER_M)))
+        self._store(Y_UM, as_unsigned32(_saturate_int32(fix.y_m * UM_PER_M)))
+        heading_urad = round(wrap_angle_rad(fix.heading_rad) * URAD_PER_RAD)
+        self._store(HEADING_URAD, as_unsigned32(heading_urad))
+        self._store(SEQ, (self._get(SEQ) + 1) & WORD_MASK)
+        self._age_ns = 0
+        self._store(AGE_MS, 0)
+        self._set_bits(EVENTS, "NEW_FIX")
+        self._set_valid(True)
+
+    def hw_cut_fix(self) -> None:
+        """The tracking system stops delivering: VALID clears."""
+        self._set_valid(False)
+
+    def hw_valid(self) -> bool:
+        return self._valid
+
+    # -- internals -------------------------------------------------------------------
+
+    def _set_valid(self, valid: bool) -> None:
+        if self._valid and not valid:
+            self._set_bits(EVENTS, "LOST")
+        self._valid = valid
+        self._store(STATUS, int(valid))

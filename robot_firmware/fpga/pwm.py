@@ -1,0 +1,131 @@
+"""Motor PWM IP: one instance per wheel, sign-magnitude drive of an H-bridge.
+
+The output is high for DUTY_TICKS of every PERIOD_TICKS fabric clock cycles; DIR
+selects the H-bridge polarity. A duty above the period saturates at 100 % (STATUS
+SATURATED); a period of 0 holds the output low. While the watchdog cuts the outputs
+(`hw_set_safe_stop(True)`, wired by the fabric) the output is held low whatever the
+registers say; the registers keep their values, so the output resumes when the cut
+ends. The world reads the resulting signed duty cycle with `hw_output`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from robot_firmware.fpga.clock import DEFAULT_FABRIC_CLOCK_HZ
+from robot_firmware.fpga.registers import Access, Field, Peripheral, Register
+
+RESET_PERIOD_TICKS = 2_500  # 20 kHz at the 50 MHz reset fabric clock
+
+CTRL = Register(
+    "CTRL",
+    0x00,
+    Access.RW,
+    0,
+    (
+        Field("EN", 0, 0, "1 = output enabled"),
+        Field("DIR", 1, 1, "1 = reverse polarity (negative duty)"),
+    ),
+    "Enable and direction.",
+    affects=("STATUS",),
+)
+PERIOD_TICKS = Register(
+    "PERIOD_TICKS",
+    0x04,
+    Access.RW,
+    RESET_PERIOD_TICKS,
+    (Field("TICKS", 23, 0, "fabric clock cycles; 0 holds the output low"),),
+    "PWM period.",
+    affects=("STATUS",),
+)
+DUTY_TICKS = Register(
+    "DUTY_TICKS",
+    0x08,
+    Access.RW,
+    0,
+    (Field("TICKS", 23, 0, "fabric clock cycles high per period; saturates at the period"),),
+    "High time per period.",
+    affects=("STATUS",),
+)
+STATUS = Register(
+    "STATUS",
+    0x0C,
+    Access.RO,
+    0,
+    (
+        Field("SAFE_STOP", 0, 0, "the watchdog holds the output low"),
+        Field("SATURATED", 1, 1, "DUTY_TICKS >= PERIOD_TICKS > 0"),
+        Field("ACTIVE", 2, 2, "the output is driving (enabled, not cut, duty > 0)"),
+    ),
+    "Output state.",
+)
+
+REGISTERS = (CTRL, PERIOD_TICKS, DUTY_TICKS, STATUS)
+
+
+@dataclass(frozen=True)
+class PwmOutput:
+    """What the pins of one PWM generator carry."""
+
+    duty: float
+    """Signed duty cycle, -1..1 (sign = DIR); 0 when disabled or cut."""
+    enabled: bool
+    """Enabled, not cut by the watchdog, and with a non-zero period."""
+    frequency_hz: float
+    """Switching frequency; 0 when the period is 0."""
+
+
+def _fixed_clock_hz() -> int:
+    return DEFAULT_FABRIC_CLOCK_HZ
+
+
+class Pwm(Peripheral):
+    """Single-channel PWM generator with direction bit and safe-stop input."""
+
+    TITLE = "Motor PWM"
+    SUMMARY = (
+        "One instance per wheel. Output high for DUTY_TICKS of every PERIOD_TICKS fabric "
+        "cycles, polarity DIR. Held low while the watchdog has expired (SAFE_STOP); the "
+        "registers keep their values and the output resumes after a good kick."
+    )
+
+    def __init__(self, name: str, clock_hz: Callable[[], int] = _fixed_clock_hz) -> None:
+        super().__init__(name, REGISTERS)
+        self._clock_hz = clock_hz
+        self._safe_stop = False
+        refresh = self._on_setting
+        self._write_actions = {
+            CTRL.offset: refresh,
+            PERIOD_TICKS.offset: refresh,
+            DUTY_TICKS.offset: refresh,
+        }
+
+    # -- hardware side ---------------------------------------------------------------
+
+    def hw_set_safe_stop(self, active: bool) -> None:
+        """Watchdog cut input: True holds the output low."""
+        self._safe_stop = active
+        self._on_setting(0)
+
+    def hw_output(self) -> PwmOutput:
+        period = self._get(PERIOD_TICKS)
+        enabled = bool(self._get_field(CTRL, "EN")) and not self._safe_stop and period > 0
+        if not enabled:
+            return PwmOutput(0.0, False, self._clock_hz() / period if period else 0.0)
+        magnitude = min(self._get(DUTY_TICKS), period) / period
+        sign = -1.0 if self._get_field(CTRL, "DIR") else 1.0
+        return PwmOutput(sign * magnitude, True, self._clock_hz() / period)
+
+    # -- side effects ----------------------------------------------------------------
+
+    def _on_setting(self, value: int) -> None:
+        del value
+        period = self._get(PERIOD_TICKS)
+        duty = self._get(DUTY_TICKS)
+        enabled = bool(self._get_field(CTRL, "EN"))
+        status = STATUS.field("SAFE_STOP").insert(0, int(self._safe_stop))
+        status = STATUS.field("SATURATED").insert(status, int(0 < period <= duty))
+        active = enabled and not self._safe_stop and period > 0 and duty > 0
+        status = STATUS.field("ACTIVE").insert(status, int(active))
+        self._store(STATUS, status)

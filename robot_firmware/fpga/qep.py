@@ -1,0 +1,194 @@
+"""Quadrature encoder (QEP) IP: one instance per wheel.
+
+The pins carry the encoder's A/B signals; the IP decodes every edge of both (4x
+decoding), so one encoder line period is 4 counts. In the emulation the world gives
+the running 4x edge count of the wheel (`hw_set_encoder_counts`); the IP counts the
+change since the previous value. The first value after power-up only sets the
+baseline: edges before power-up are not seen.
+
+COUNT is the signed 32-bit position (two's complement); when it wraps past +/-2**31
+the OVERFLOW event is set. Every WINDOW_TICKS fabric clock cycles the counts of the
+window are latched into SPEED (signed counts per window) and pushed through the speed
+filter into SPEED_FILTERED, and SPEED_NEW is set. If one `tick` spans several
+windows, SPEED is the mean per window over them. WINDOW_TICKS 0 stops the latching.
+"""
+
+from __future__ import annotations
+
+import operator
+from collections.abc import Callable
+
+from robot_firmware.fpga.clock import DEFAULT_FABRIC_CLOCK_HZ
+from robot_firmware.fpga.registers import (
+    WORD_BITS,
+    Access,
+    Field,
+    Peripheral,
+    Register,
+    as_unsigned32,
+)
+
+NS_PER_S = 1_000_000_000
+RESET_WINDOW_TICKS = 500_000  # 10 ms at the 50 MHz reset fabric clock
+_COUNT_MIN = -(1 << (WORD_BITS - 1))
+_COUNT_SPAN = 1 << WORD_BITS
+
+COUNT = Register(
+    "COUNT",
+    0x00,
+    Access.RO,
+    0,
+    (Field("COUNT", 31, 0, "signed two's complement, 4 counts per encoder line"),),
+    "Wheel position in 4x-decoded encoder counts.",
+)
+SPEED = Register(
+    "SPEED",
+    0x04,
+    Access.RO,
+    0,
+    (Field("COUNTS", 31, 0, "signed two's complement"),),
+    "Counts during the last speed window.",
+)
+SPEED_FILTERED = Register(
+    "SPEED_FILTERED",
+    0x08,
+    Access.RO,
+    0,
+    (Field("COUNTS", 31, 0, "signed two's complement"),),
+    "SPEED after the speed filter.",
+)
+STATUS = Register(
+    "STATUS",
+    0x0C,
+    Access.RO,
+    0,
+    (Field("DIR", 0, 0, "direction of the last count change: 0 up, 1 down"),),
+    "Decoder state.",
+)
+EVENTS = Register(
+    "EVENTS",
+    0x10,
+    Access.W1C,
+    0,
+    (
+        Field("OVERFLOW", 0, 0, "COUNT wrapped past +/-2^31"),
+        Field("SPEED_NEW", 1, 1, "SPEED was latched"),
+    ),
+    "Sticky events; write 1 to clear.",
+)
+CTRL = Register(
+    "CTRL",
+    0x14,
+    Access.RW,
+    0b01,
+    (
+        Field("EN", 0, 0, "1 = count edges; 0 = edges are ignored"),
+        Field("INVERT", 1, 1, "1 = count down for a forward turn"),
+    ),
+    "Counter control.",
+)
+CLEAR = Register(
+    "CLEAR",
+    0x18,
+    Access.WO,
+    0,
+    (Field("COUNT", 0, 0, "1 sets COUNT to 0"),),
+    "Position clear.",
+    affects=("COUNT",),
+)
+WINDOW_TICKS = Register(
+    "WINDOW_TICKS",
+    0x1C,
+    Access.RW,
+    RESET_WINDOW_TICKS,
+    (Field("TICKS", 31, 0, "fabric clock cycles; 0 stops the speed latch"),),
+    "Speed window length.",
+)
+
+REGISTERS = (COUNT, SPEED, SPEED_FILTERED, STATUS, EVENTS, CTRL, CLEAR, WINDOW_TICKS)
+
+
+def _identity(sample: int) -> int:
+    return sample
+
+
+def _fixed_clock_hz() -> int:
+    return DEFAULT_FABRIC_CLOCK_HZ
+
+
+class Qep(Peripheral):
+    """4x quadrature decoder with position count and windowed speed."""
+
+    TITLE = "Quadrature encoder (QEP)"
+    SUMMARY = (
+        "One instance per wheel. COUNT is the signed 4x-decoded position; OVERFLOW is set when "
+        "it wraps. Every WINDOW_TICKS fabric cycles the counts of the window are latched into "
+        "SPEED and, through speed_filter, SPEED_FILTERED. The first encoder value after "
+        "power-up is the baseline."
+    )
+
+    def __init__(
+        self,
+        name: str,
+        clock_hz: Callable[[], int] = _fixed_clock_hz,
+        speed_filter: Callable[[int], int] = _identity,
+    ) -> None:
+        super().__init__(name, REGISTERS)
+        self._clock_hz = clock_hz
+        self._speed_filter = speed_filter
+        self._last_edges: int | None = None
+        self._count = 0
+        self._window_counts = 0
+        self._window_elapsed_ns = 0
+        self._write_actions = {CLEAR.offset: self._on_clear}
+
+    def tick(self, dt_ns: int) -> None:
+        window_ns = self._get(WINDOW_TICKS) * NS_PER_S // max(1, self._clock_hz())
+        if window_ns == 0:
+            self._window_elapsed_ns = 0
+            self._window_counts = 0
+            return
+        self._window_elapsed_ns += dt_ns
+        windows, self._window_elapsed_ns = divmod(self._window_elapsed_ns, window_ns)
+        if windows == 0:
+            return
+        counts = self._window_counts
+        per_window = abs(counts) // windows
+        speed = per_window if counts >= 0 else -per_window
+        self._window_counts = 0
+        self._store(SPEED, as_unsigned32(speed))
+        self._store(SPEED_FILTERED, as_unsigned32(self._speed_filter(speed)))
+        self._set_bits(EVENTS, "SPEED_NEW")
+
+    # -- hardware side ---------------------------------------------------------------
+
+    def hw_set_encoder_counts(self, edges_counts: int) -> None:
+        """The wheel encoder's running 4x edge count, as the pins have seen it so far."""
+        edges = operator.index(edges_counts)
+        previous, self._last_edges = self._last_edges, edges
+        if previous is None or not self._get_field(CTRL, "EN"):
+            return
+        delta = edges - previous
+        if self._get_field(CTRL, "INVERT"):
+            delta = -delta
+        if delta == 0:
+            return
+        self._window_counts += delta
+        self._store(STATUS, STATUS.field("DIR").insert(0, int(delta < 0)))
+        position = self._count + delta
+        wrapped = (position - _COUNT_MIN) % _COUNT_SPAN + _COUNT_MIN
+        if wrapped != position:
+            self._set_bits(EVENTS, "OVERFLOW")
+        self._count = wrapped
+        self._store(COUNT, as_unsigned32(wrapped))
+
+    def hw_count(self) -> int:
+        """COUNT as a signed integer."""
+        return self._count
+
+    # -- side effects ----------------------------------------------------------------
+
+    def _on_clear(self, value: int) -> None:
+        if CLEAR.field("COUNT").extract(value):
+            self._count = 0
+            self._store(COUNT, 0)

@@ -1,0 +1,183 @@
+"""Ultrasound ranger IP: measures the echo pulse width of one sonar in fabric clock ticks.
+
+Writing START to TRIGGER fires a ping and sets BUSY. The world tells the IP, through
+`hw_set_echo_time`, the round-trip time of the echo the sonar would receive now
+(None when there is none); the IP samples it at the trigger. After the echo time has
+passed (`tick`), the width in fabric ticks is latched into WIDTH_TICKS, pushed
+through the sonar filter into FILTERED_TICKS, SAMPLES increments and DATA_READY is
+set. With no echo, or one longer than TIMEOUT_TICKS, the measurement ends after
+TIMEOUT_TICKS with the TIMEOUT event and WIDTH_TICKS unchanged. A trigger while BUSY
+is ignored and sets MISSED. EVENTS clears when read.
+
+The range is width / f_fabric * c / 2 with c = SPEED_OF_SOUND_MPS;
+`range_m_for_width_ticks` and `echo_time_s_for_range_m` do that conversion.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from robot_firmware.fpga.clock import DEFAULT_FABRIC_CLOCK_HZ
+from robot_firmware.fpga.registers import WORD_MASK, Access, Field, Peripheral, Register
+
+SPEED_OF_SOUND_MPS = 343.0
+NS_PER_S = 1_000_000_000
+RESET_TIMEOUT_TICKS = 1_500_000  # 30 ms at the 50 MHz reset fabric clock, about 5.1 m
+
+
+def echo_time_s_for_range_m(range_m: float) -> float:
+    """Round-trip echo time of an obstacle at `range_m`."""
+    return 2.0 * range_m / SPEED_OF_SOUND_MPS
+
+
+def range_m_for_width_ticks(width_ticks: int, fabric_clock_hz: float) -> float:
+    """Obstacle range for an echo pulse of `width_ticks` fabric clock cycles."""
+    return width_ticks / fabric_clock_hz * SPEED_OF_SOUND_MPS / 2.0
+
+
+TRIGGER = Register(
+    "TRIGGER",
+    0x00,
+    Access.WO,
+    0,
+    (Field("START", 0, 0, "1 fires a ping; ignored (and MISSED set) while BUSY"),),
+    "Measurement trigger.",
+    affects=("STATUS", "EVENTS"),
+)
+STATUS = Register(
+    "STATUS",
+    0x04,
+    Access.RO,
+    0,
+    (Field("BUSY", 0, 0, "a measurement is in progress"),),
+    "Ranger state.",
+)
+EVENTS = Register(
+    "EVENTS",
+    0x08,
+    Access.RC,
+    0,
+    (
+        Field("DATA_READY", 0, 0, "a new WIDTH_TICKS was latched"),
+        Field("TIMEOUT", 1, 1, "a measurement ended with no echo within TIMEOUT_TICKS"),
+        Field("MISSED", 2, 2, "a trigger arrived while BUSY"),
+    ),
+    "Measurement events; a read returns and clears them.",
+)
+WIDTH_TICKS = Register(
+    "WIDTH_TICKS",
+    0x0C,
+    Access.RO,
+    0,
+    (Field("TICKS", 31, 0, "fabric clock cycles"),),
+    "Echo pulse width of the last measurement.",
+)
+FILTERED_TICKS = Register(
+    "FILTERED_TICKS",
+    0x10,
+    Access.RO,
+    0,
+    (Field("TICKS", 31, 0, "fabric clock cycles"),),
+    "WIDTH_TICKS after the sonar filter.",
+)
+TIMEOUT_TICKS = Register(
+    "TIMEOUT_TICKS",
+    0x14,
+    Access.RW,
+    RESET_TIMEOUT_TICKS,
+    (Field("TICKS", 31, 0, "fabric clock cycles"),),
+    "Longest echo accepted; a measurement gives up after it.",
+)
+SAMPLES = Register(
+    "SAMPLES",
+    0x18,
+    Access.RO,
+    0,
+    (Field("COUNT", 31, 0, "echoes latched since reset, wraps"),),
+    "Number of echoes measured.",
+)
+
+REGISTERS = (TRIGGER, STATUS, EVENTS, WIDTH_TICKS, FILTERED_TICKS, TIMEOUT_TICKS, SAMPLES)
+
+
+def _identity(sample: int) -> int:
+    return sample
+
+
+def _fixed_clock_hz() -> int:
+    return DEFAULT_FABRIC_CLOCK_HZ
+
+
+class Sonar(Peripheral):
+    """Triggered echo-width timer of one ultrasound ranger."""
+
+    TITLE = "Ultrasound ranger"
+    SUMMARY = (
+        "One instance per sonar. TRIGGER starts a measurement; after the echo returns, "
+        "WIDTH_TICKS holds its width in fabric cycles (range = width / f_C0 * 343 m/s / 2), "
+        "FILTERED_TICKS the output of sonar_filter, and EVENTS.DATA_READY is set. No echo "
+        "within TIMEOUT_TICKS sets EVENTS.TIMEOUT instead."
+    )
+
+    def __init__(
+        self,
+        name: str,
+        clock_hz: Callable[[], int] = _fixed_clock_hz,
+        width_filter: Callable[[int], int] = _identity,
+    ) -> None:
+        super().__init__(name, REGISTERS)
+        self._clock_hz = clock_hz
+        self._width_filter = width_filter
+        self._echo_time_s: float | None = None
+        self._remaining_ns: int | None = None
+        self._result_ticks: int | None = None
+        self._write_actions = {TRIGGER.offset: self._on_trigger}
+
+    def tick(self, dt_ns: int) -> None:
+        if self._remaining_ns is None:
+            return
+        self._remaining_ns -= dt_ns
+        if self._remaining_ns > 0:
+            return
+        self._remaining_ns = None
+        self._store(STATUS, 0)
+        if self._result_ticks is None:
+            self._set_bits(EVENTS, "TIMEOUT")
+            return
+        self._store(WIDTH_TICKS, self._result_ticks)
+        self._store(FILTERED_TICKS, self._width_filter(self._result_ticks))
+        self._store(SAMPLES, (self._get(SAMPLES) + 1) & WORD_MASK)
+        self._set_bits(EVENTS, "DATA_READY")
+
+    # -- hardware side ---------------------------------------------------------------
+
+    def hw_set_echo_time(self, echo_time_s: float | None) -> None:
+        """Round-trip time of the echo a ping would get now; None (or not finite, < 0) = none."""
+        if echo_time_s is None or not math.isfinite(echo_time_s) or echo_time_s < 0.0:
+            self._echo_time_s = None
+        else:
+            self._echo_time_s = float(echo_time_s)
+
+    def hw_busy(self) -> bool:
+        return self._remaining_ns is not None
+
+    # -- side effects ----------------------------------------------------------------
+
+    def _on_trigger(self, value: int) -> None:
+        if not TRIGGER.field("START").extract(value):
+            return
+        if self._remaining_ns is not None:
+            self._set_bits(EVENTS, "MISSED")
+            return
+        clock_hz = max(1, self._clock_hz())
+        timeout_ticks = self._get(TIMEOUT_TICKS)
+        echo_s = self._echo_time_s
+        width_ticks = None if echo_s is None else round(echo_s * clock_hz)
+        if width_ticks is None or width_ticks > timeout_ticks:
+            self._result_ticks = None
+            self._remaining_ns = timeout_ticks * NS_PER_S // clock_hz
+        else:
+            self._result_ticks = width_ticks
+            self._remaining_ns = width_ticks * NS_PER_S // clock_hz
+        self._store(STATUS, STATUS.field("BUSY").mask)
