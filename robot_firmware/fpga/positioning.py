@@ -135,6 +135,9 @@ def wrap_angle_rad(angle_rad: float) -> float:
 
 
 def _saturate_int32(value: float) -> int:
+    """Round to the nearest int32, saturating (a finite fix in metres can overflow in µm)."""
+    if math.isinf(value):
+        return _INT32_MAX if value > 0 else _INT32_MIN
     return min(max(round(value), _INT32_MIN), _INT32_MAX)
 
 

@@ -84,3 +84,10 @@ def test_heading_is_wrapped_and_position_saturates() -> None:
     assert pose(fabric) == (2**31 - 1, -(2**31), 3_141_593)
     assert wrap_angle_rad(-math.pi) == math.pi
     assert wrap_angle_rad(2 * math.pi + 0.5) == 0.5
+
+
+def test_huge_finite_fix_saturates_instead_of_overflowing() -> None:
+    from robot_firmware.fpga.positioning import _saturate_int32
+
+    assert _saturate_int32(1e300 * 1e6) == 2**31 - 1
+    assert _saturate_int32(-1e300 * 1e6) == -(2**31)
