@@ -1,0 +1,29 @@
+"""Robot networking: the radio frame codec (pure) and, later, the glue to the radio medium."""
+
+from robot_firmware.net.frames import (
+    FRAME_BYTES,
+    SWARM_KEY_ENV_VAR,
+    DropReason,
+    FrameCounters,
+    FrameDecoder,
+    RadioFrame,
+    Role,
+    encode,
+    key_from_secret,
+    parse_frame,
+    swarm_hash_from_name,
+)
+
+__all__ = [
+    "FRAME_BYTES",
+    "SWARM_KEY_ENV_VAR",
+    "DropReason",
+    "FrameCounters",
+    "FrameDecoder",
+    "RadioFrame",
+    "Role",
+    "encode",
+    "key_from_secret",
+    "parse_frame",
+    "swarm_hash_from_name",
+]
