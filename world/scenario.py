@@ -34,6 +34,7 @@ from robot_firmware.control.trajectories import (
     PolylineTrajectory,
     Trajectory,
 )
+from robot_firmware.firmware import RobotMission
 from world.metrics import FormationLayout, MetricsConfig
 from world.physics import BodyParams
 from world.radio import PROFILES, LinkProfile
@@ -250,6 +251,27 @@ class Scenario(_Strict):
         }
         unset = {k: v for k, v in geometry.items() if k not in self.controller.model_fields_set}
         return self.controller.model_copy(update=unset)
+
+    def mission(self, name: str, rule_base: FuzzyRuleBase) -> RobotMission:
+        """What robot `name` is told at boot: its index, role, slot, trajectory, parameters."""
+        names = self.robot_names
+        if name not in names:
+            raise ScenarioError(f"no robot named {name!r} in scenario {self.name!r}: {names}")
+        index = names.index(name)
+        spec = self.robots[index]
+        return RobotMission(
+            name=name,
+            index=index,
+            names=names,
+            is_leader=spec.role == "leader",
+            slot_distance_m=spec.slot.distance_m if spec.slot else 0.0,
+            slot_angle_rad=math.radians(spec.slot.angle_deg) if spec.slot else 0.0,
+            trajectory=self.trajectory.build(),
+            params=self.controller_params(),
+            rule_base=rule_base,
+            broadcast_rate_hz=self.radio.broadcast_rate_hz,
+            sonar_rate_hz=self.sensors.sonar.rate_hz,
+        )
 
     def metrics_config(self) -> MetricsConfig:
         """Metrics windows from the scenario, distances from the controller and the body."""

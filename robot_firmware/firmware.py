@@ -1,0 +1,208 @@
+"""The HPS firmware of one robot: the 5C loop over the FPGA bus (DESIGN.md §4).
+
+Every 10 ms `control_tick` runs the five levels in order:
+
+    1 connection     read the QEP counts, the sonar ring and the positioning receiver through
+                     the drivers (bus accesses only; no other way to the sensors exists)
+    2 conversion     odometry and fix fusion, sonar gaps to obstacle points
+    3 cyber          peers' broadcast states from the radio; desired pose (trajectory or
+                     eqs. 17-21); APF (eqs. 22-25)
+    4 cognition      fuzzy-scheduled gains (Table 2) and the redundant PID law (eq. 14)
+    5 configuration  wheel speeds to PWM duty registers, watchdog kick, radio broadcast
+
+Levels 2-4 are `control_step`, the same function the batch simulator runs for thousands of
+robots at once; here its batch shape is ().  Radio frames arrive through `receive` between
+ticks; malformed, stale, replayed or unauthenticated ones are dropped and counted by the frame
+decoder and never reach the control law.  Time is an argument (`now_ns`); the class opens no
+socket and reads no clock, so a test can run it against a fabric model in one process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robot_firmware.control.controller import (
+    ControlInputs,
+    ControllerParams,
+    ControllerState,
+    ControlOutputs,
+    RobotRole,
+    control_step,
+)
+from robot_firmware.control.fuzzy import FuzzyRuleBase
+from robot_firmware.control.trajectories import Trajectory
+from robot_firmware.drivers import Drivers
+from robot_firmware.net.frames import (
+    FrameDecoder,
+    RadioFrame,
+    Role,
+    encode,
+    initial_sequence,
+    next_sequence,
+)
+
+FloatArray = NDArray[np.float64]
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class RobotMission:
+    """What one robot is told about its task: who it is, its role, and how to steer."""
+
+    name: str
+    index: int
+    names: tuple[str, ...]
+    is_leader: bool
+    slot_distance_m: float
+    slot_angle_rad: float
+    trajectory: Trajectory
+    params: ControllerParams
+    rule_base: FuzzyRuleBase
+    broadcast_rate_hz: float = 20.0
+    sonar_rate_hz: float = 20.0
+    watchdog_timeout_ms: int = 100
+
+    @property
+    def sonar_count(self) -> int:
+        return len(self.params.sonar_beam_angles_rad)
+
+
+@dataclass(frozen=True)
+class TickReport:
+    """What one control tick did: the control law's outputs and the frame to broadcast."""
+
+    outputs: ControlOutputs
+    frame: bytes | None
+    sonar_fresh: bool
+    fix_fresh: bool
+
+
+class Firmware:
+    """One robot's control software, reaching its hardware only through `drivers`."""
+
+    def __init__(
+        self, mission: RobotMission, drivers: Drivers, key: bytes, swarm_hash: int = 0
+    ) -> None:
+        self.mission = mission
+        self.drivers = drivers
+        self._key = key
+        self._swarm_hash = swarm_hash
+        n = len(mission.names)
+        self.decoder = FrameDecoder(key, own_id=mission.index, swarm_hash=swarm_hash)
+        self.state = ControllerState.initial((), mission.sonar_count)
+        self.role = RobotRole(
+            is_leader=np.array(mission.is_leader),
+            slot_distance_m=np.array(mission.slot_distance_m),
+            slot_angle_rad=np.array(mission.slot_angle_rad),
+        )
+        self.rules = mission.rule_base.expand_dims((0,))  # broadcast over the three axes
+        self.peer_pose = np.zeros((n, 3))
+        self.peer_rate = np.zeros((n, 3))
+        self.peer_stamp_s = np.full(n, -np.inf)
+        self.peer_is_leader = np.zeros(n, dtype=bool)
+        self.sonar_gap_m = np.full(mission.sonar_count, np.inf)
+        self.fix_pose = np.zeros(3)
+        self._sequence: int | None = None
+        self._broadcast_period_ns = round(NS_PER_S / mission.broadcast_rate_hz)
+        self._sonar_period_ns = round(NS_PER_S / mission.sonar_rate_hz)
+        self._next_broadcast_ns = 0
+        self._next_sonar_ns = 0
+        self.ticks = 0
+        self.frames_sent = 0
+        self.last_state: ControllerState | None = None
+        self.last_inputs: ControlInputs | None = None
+
+    def boot(self, tick_fabric: Callable[[int], None], pll_timeout_ns: int = 1_000_000) -> None:
+        """Identify the fabric, wait for the PLL, arm the motors and the watchdog."""
+        self.drivers.system.identify()
+        self.drivers.system.wait_for_pll_lock(tick_fabric, pll_timeout_ns)
+        self.drivers.motors.configure()
+        self.drivers.watchdog.configure(self.mission.watchdog_timeout_ms)
+
+    def receive(self, data: bytes, now_ns: int) -> bool:
+        """Take one radio frame; returns whether it was accepted into the peer table."""
+        frame = self.decoder.decode(data, now_ns)
+        if frame is None or frame.sender_id >= len(self.mission.names):
+            return False
+        i = frame.sender_id
+        self.peer_pose[i] = (frame.x_m, frame.y_m, frame.theta_rad)
+        self.peer_rate[i] = (frame.xdot_mps, frame.ydot_mps, frame.thetadot_radps)
+        self.peer_stamp_s[i] = frame.timestamp_ns / NS_PER_S
+        self.peer_is_leader[i] = frame.role == Role.LEADER
+        return True
+
+    def control_tick(self, now_ns: int) -> TickReport:
+        """Run the 5C levels once at time now_ns."""
+        d = self.drivers
+        t_s = now_ns / NS_PER_S
+        # Level 1: connection.
+        counts = d.encoders.read_counts()
+        fix = d.positioning.read_fix()
+        if fix is not None:
+            self.fix_pose = np.array([fix.x_m, fix.y_m, fix.heading_rad])
+        gaps, sonar_fresh = d.sonar.poll()
+        if sonar_fresh:
+            self.sonar_gap_m = gaps
+        if now_ns >= self._next_sonar_ns:
+            d.sonar.trigger_all()
+            self._next_sonar_ns = now_ns + self._sonar_period_ns
+        # Levels 2-4: the shared control step.
+        reference_pose, reference_rate = self.mission.trajectory.evaluate(t_s)
+        inputs = ControlInputs(
+            t_s=t_s,
+            encoder_counts=counts,
+            fix_pose=self.fix_pose,
+            fix_valid=np.array(fix is not None),
+            sonar_range_m=self.sonar_gap_m,
+            sonar_fresh=sonar_fresh,
+            peer_pose=self.peer_pose,
+            peer_rate=self.peer_rate,
+            peer_stamp_s=self.peer_stamp_s,
+            peer_valid=np.isfinite(self.peer_stamp_s),
+            peer_is_leader=self.peer_is_leader,
+            reference_pose=reference_pose,
+            reference_rate=reference_rate,
+        )
+        self.last_state, self.last_inputs = self.state, inputs
+        self.state, outputs = control_step(
+            self.state, inputs, self.role, self.rules, self.mission.params
+        )
+        # Level 5: configuration.
+        d.motors.set_duty(tuple(float(x) for x in outputs.duty))
+        d.watchdog.kick()
+        frame = None
+        if now_ns >= self._next_broadcast_ns:
+            self._next_broadcast_ns = now_ns + self._broadcast_period_ns
+            frame = self._broadcast(now_ns)
+        self.ticks += 1
+        return TickReport(
+            outputs=outputs, frame=frame, sonar_fresh=sonar_fresh, fix_fresh=fix is not None
+        )
+
+    def _broadcast(self, now_ns: int) -> bytes:
+        self._sequence = (
+            initial_sequence(now_ns) if self._sequence is None else next_sequence(self._sequence)
+        )
+        est = self.state.estimator
+        pose = est.pose
+        rate = est.rate
+        frame = RadioFrame(
+            role=Role.LEADER if self.mission.is_leader else Role.FOLLOWER,
+            sender_id=self.mission.index,
+            sequence=self._sequence,
+            timestamp_ns=now_ns,
+            x_m=float(pose[0]),
+            y_m=float(pose[1]),
+            theta_rad=float(pose[2]),
+            xdot_mps=float(rate[0]),
+            ydot_mps=float(rate[1]),
+            thetadot_radps=float(rate[2]),
+            localised=bool(est.localised),
+            swarm_hash=self._swarm_hash,
+        )
+        self.frames_sent += 1
+        return encode(frame, self._key)

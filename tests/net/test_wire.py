@@ -1,0 +1,78 @@
+import struct
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from robot_firmware.net.keys import SwarmKeys, check_name
+from robot_firmware.net.wire import (
+    ActMessage,
+    ClockMessage,
+    FixSample,
+    SenseMessage,
+    decode_act,
+    decode_clock,
+    decode_sense,
+    encode_act,
+    encode_clock,
+    encode_sense,
+)
+
+
+def test_sense_round_trip_keeps_every_field() -> None:
+    message = SenseMessage(
+        encoder_counts=(1, -2, 3_000_000_000, -(2**40)),
+        sonar_echo_times_s=(0.001, None, 0.0125, None),
+        fix=FixSample(1.5, -0.25, 3.0, 123_456_789, valid=False),
+        tick=42,
+        t_ns=987_654_321,
+    )
+    decoded = decode_sense(encode_sense(message))
+    assert decoded is not None
+    assert decoded.encoder_counts == message.encoder_counts
+    assert decoded.fix == message.fix
+    assert decoded.tick == 42 and decoded.t_ns == 987_654_321
+    assert decoded.sonar_echo_times_s[1] is None
+    assert decoded.sonar_echo_times_s[0] == pytest.approx(0.001)
+    no_fix = SenseMessage((0, 0, 0, 0), (), None)
+    assert decode_sense(encode_sense(no_fix)) == no_fix
+
+
+def test_act_and_clock_round_trip() -> None:
+    act = ActMessage(7, (0.5, -0.25, 0.0, 1.0), (True, False, True, True), False)
+    assert decode_act(encode_act(act)) == act
+    clock = ClockMessage(tick=9, t_ns=90_000_000, dt_ns=10_000_000, lockstep=True)
+    assert decode_clock(encode_clock(clock)) == clock
+
+
+def test_malformed_messages_are_refused() -> None:
+    good = encode_act(ActMessage(1, (0.0, 0.0, 0.0, 0.0), (True,) * 4, False))
+    assert decode_act(good[:-1]) is None
+    assert decode_act(b"\x02" + good[1:]) is None
+    bad_duty = struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, 2.0, 0.0, 0.0, 0.0)
+    assert decode_act(bad_duty) is None
+    nan_duty = struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, float("nan"), 0.0, 0.0, 0.0)
+    assert decode_act(nan_duty) is None
+    sense = encode_sense(SenseMessage((0, 0, 0, 0), (0.01,), None))
+    assert decode_sense(sense + b"\x00") is None
+    assert decode_clock(b"") is None
+
+
+@settings(max_examples=2000, deadline=None, database=None)
+@given(st.binary(max_size=400))
+def test_decoders_never_raise_on_random_bytes(data: bytes) -> None:
+    for decode in (decode_sense, decode_act, decode_clock):
+        decode(data)
+
+
+def test_keys_follow_the_design_and_names_are_checked() -> None:
+    keys = SwarmKeys("lab")
+    assert keys.act("robot2") == "swarm/lab/wire/robot2/act"
+    assert keys.radio_rx("robot1") == "swarm/lab/radio/rx/robot1"
+    assert keys.alive("robot", "robot3") == "swarm/lab/alive/robot/robot3"
+    assert keys.admin("robot1", "regs") == "swarm/lab/admin/robot1/regs"
+    assert SwarmKeys.last_chunk(keys.telemetry("robot3")) == "robot3"
+    with pytest.raises(ValueError, match="lowercase"):
+        check_name("robot", "Robot 1")
+    with pytest.raises(ValueError):
+        SwarmKeys("a/b")

@@ -1,0 +1,72 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from world.engine import NS_PER_S, SPEED_OF_SOUND_MPS, WorldEngine
+from world.radio import LinkProfile
+from world.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+def _engine(profile: str | LinkProfile) -> WorldEngine:
+    scenario = load_scenario(PAPER)
+    radio = scenario.radio.model_copy(update={"profile": profile})
+    return WorldEngine(scenario.model_copy(update={"radio": radio}))
+
+
+@pytest.mark.parametrize(
+    "profile",
+    [
+        LinkProfile(latency_ms=50.0, jitter_ms=20.0, loss=0.2),
+        LinkProfile(latency_ms=5.0, jitter_ms=2.0, loss=0.05),
+    ],
+)
+def test_radio_medium_delivery_ratio_and_delay_match_the_profile(profile: LinkProfile) -> None:
+    engine = _engine(profile)
+    step_ns = 1_000_000
+    for k in range(3000):  # 3,000 broadcasts to 2 receivers = 6,000 frames
+        engine.transmit(k % 3, k.to_bytes(4, "little"))
+        engine.advance(np.zeros((3, 4)), step_ns)
+        engine.due_frames()
+    for _ in range(200):
+        engine.advance(np.zeros((3, 4)), step_ns)
+        engine.due_frames()
+    radio = engine.radio
+    frames = 2 * radio.sent
+    assert frames >= 5000
+    assert radio.delivered + radio.dropped == frames
+    assert abs(radio.delivered / frames - (1.0 - profile.loss)) <= 0.015
+    mean_delay_ms = float(np.mean(radio.latencies_ns)) / 1e6
+    # Delivery is checked on a 1 ms grid, so a frame waits up to one step beyond its delay.
+    assert abs(mean_delay_ms - (profile.latency_ms + 0.5)) <= 1.0
+
+
+def test_frames_are_never_delivered_to_their_sender_and_arrive_after_the_delay() -> None:
+    engine = _engine(LinkProfile(latency_ms=30.0))
+    engine.transmit(1, b"hello")
+    engine.advance(np.zeros((3, 4)), 29 * 1_000_000)
+    assert engine.due_frames() == []
+    engine.advance(np.zeros((3, 4)), 1_000_000)
+    assert sorted(engine.due_frames()) == [(0, 1, b"hello"), (2, 1, b"hello")]
+
+
+def test_sense_messages_carry_encoders_sonar_and_fixes_on_schedule() -> None:
+    engine = _engine("ideal")
+    first = engine.sense()
+    assert len(first) == 3
+    assert all(m.fix is not None for m in first)
+    assert all(len(m.sonar_echo_times_s) == 12 for m in first)
+    engine.advance(np.full((3, 4), 0.3), 10_000_000)
+    second = engine.sense()
+    assert all(m.fix is None for m in second)  # fixes come at 20 Hz
+    assert any(c != 0 for c in second[0].encoder_counts)
+    echo = [t for m in first for t in m.sonar_echo_times_s if t is not None]
+    assert echo and all(0.0 < t < 2 * 3.0 / SPEED_OF_SOUND_MPS for t in echo)
+    engine.fixes_cut[1] = True
+    engine.advance(np.zeros((3, 4)), 40_000_000)
+    third = engine.sense()
+    assert third[1].fix is not None and not third[1].fix.valid
+    assert engine.t_ns == 50_000_000 and engine.t_s == 50_000_000 / NS_PER_S
