@@ -11,9 +11,11 @@ admin queries.  The main loop owns the fabric and the firmware:
   simulation time, answered by an act message carrying the same tick number.
 
 The robot's notion of time is the world's simulation time (from the last sense message plus the
-time since it arrived), so frame timestamps from different robots compare.  A liveliness token
-`alive/robot/<name>` tells the world and the launcher that the robot is up.  Telemetry (estimate,
-desired pose, gains, fuzzy output, counters, loop timing) is published at its own rate.
+time since it arrived), so frame timestamps from different robots compare; until the first sense
+message arrives there is no time and the control loop waits (admin queries are still served).
+A liveliness token `alive/robot/<name>` tells the world and the launcher that the robot is up.
+Telemetry (estimate, desired pose, gains, fuzzy output, counters, loop timing) is published at
+its own rate.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import zenoh
@@ -69,7 +71,7 @@ class RobotConfig(BaseModel):
     def _key_chunk(cls, value: str) -> str:
         return check_name("robot or swarm", value)
 
-    ENV: Mapping[str, str] = {
+    ENV: ClassVar[Mapping[str, str]] = {
         "name": "ROBOT_NAME",
         "swarm": "SWARM_NAME",
         "scenario": "SWARM_SCENARIO",
@@ -161,6 +163,7 @@ class RobotProcess:
         self._last_sense_mono_ns = 0
         self._lockstep = False
         self._last_tick_served = -1
+        self._pending_tick: SenseMessage | None = None
         self._fabric_time_ns = 0
         self._telemetry_period_ns = round(NS_PER_S / config.telemetry_rate_hz)
         self._next_telemetry_ns = 0
@@ -174,6 +177,7 @@ class RobotProcess:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self._frames.append(sample.payload.to_bytes())
+        self._wake.set()
 
     def _on_query(self, query: zenoh.Query) -> None:
         self._queries.put(query)
@@ -198,15 +202,26 @@ class RobotProcess:
             while not self.stop.is_set():
                 self._serve_queries()
                 message = self._take_sense()
+                if message is not None and message.lockstep:
+                    self._pending_tick = message
                 if self._lockstep:
-                    if message is None or message.tick <= self._last_tick_served:
+                    pending = self._pending_tick
+                    # Serve a tick once its sense message and the frames it announces are here.
+                    if pending is None or len(self._frames) < pending.radio_frames:
                         self._wake.wait(0.05)
                         self._wake.clear()
                         continue
-                    self._control(message.t_ns, message.tick, act_pub, tx_pub, telemetry_pub)
-                    self._last_tick_served = message.tick
+                    self._pending_tick = None
+                    self._control(pending.t_ns, pending.tick, act_pub, tx_pub, telemetry_pub)
+                    self._last_tick_served = pending.tick
                     continue
                 now = time.monotonic_ns()
+                if self._last_sense is None:
+                    # No world yet, hence no time: the firmware waits (admin queries are served).
+                    self._wake.wait(0.05)
+                    self._wake.clear()
+                    next_deadline = time.monotonic_ns()
+                    continue
                 if now < next_deadline:
                     self._wake.wait((next_deadline - now) / NS_PER_S)
                     self._wake.clear()
@@ -284,8 +299,10 @@ class RobotProcess:
             self.firmware.receive(self._frames.popleft(), now_ns)
         report = self.firmware.control_tick(now_ns)
         self.last_report = report
+        frames_sent = 0
         if report.frame is not None:
             tx_pub.put(report.frame)
+            frames_sent = 1
         actuation = self.fabric.hw_read_actuation()
         duty = actuation.duty
         enabled = actuation.enabled
@@ -296,6 +313,7 @@ class RobotProcess:
                     duty=(duty[0], duty[1], duty[2], duty[3]),
                     enabled=(enabled[0], enabled[1], enabled[2], enabled[3]),
                     watchdog_expired=actuation.watchdog_expired,
+                    radio_frames=frames_sent,
                 )
             )
         )

@@ -5,12 +5,16 @@ for anything malformed (wrong length, unknown version, non-finite values) and ne
 caller counts the drop.
 
     sense  (world -> fabric)  version u8, n_sonar u8, flags u8 (bit0 fix present, bit1 fix
-                              valid, bit2 lockstep), pad u8, tick u64, t_ns u64,
+                              valid, bit2 lockstep), radio frames delivered with it u8,
+                              tick u64, t_ns u64,
                               encoder counts 4 x i64, fix x_m, y_m, heading_rad 3 x f64,
                               fix stamp_ns u64,
                               then n_sonar x f32 echo times in seconds (< 0: no echo)
-    act    (fabric -> world)  version u8, enabled bits u8, watchdog expired u8, pad u8,
-                              tick u64, duty 4 x f64
+    act    (fabric -> world)  version u8, enabled bits u8, watchdog expired u8,
+                              radio frames sent this tick u8, tick u64, duty 4 x f64
+
+The frame counts let lockstep be deterministic: radio frames travel on their own keys, so a
+receiver waits until it holds as many frames as the message announces before it goes on.
     clock  (world -> all)     version u8, lockstep u8, pad u16, tick u64, t_ns u64, dt_ns u64
 """
 
@@ -54,6 +58,7 @@ class SenseMessage:
     tick: int = 0
     t_ns: int = 0
     lockstep: bool = False
+    radio_frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,7 @@ class ActMessage:
     duty: tuple[float, float, float, float]
     enabled: tuple[bool, bool, bool, bool]
     watchdog_expired: bool
+    radio_frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -89,7 +95,7 @@ def encode_sense(message: SenseMessage) -> bytes:
         WIRE_VERSION,
         len(echoes),
         flags,
-        0,
+        min(message.radio_frames, 255),
         message.tick,
         message.t_ns,
         *message.encoder_counts,
@@ -105,7 +111,7 @@ def decode_sense(data: bytes) -> SenseMessage | None:
     try:
         if len(data) < _SENSE_HEAD.size:
             return None
-        version, n_sonar, flags, _, tick, t_ns, c0, c1, c2, c3, x, y, heading, stamp = (
+        version, n_sonar, flags, radio_frames, tick, t_ns, c0, c1, c2, c3, x, y, heading, stamp = (
             _SENSE_HEAD.unpack_from(data)
         )
         if version != WIRE_VERSION or n_sonar > MAX_SONAR or flags & ~7:
@@ -125,6 +131,7 @@ def decode_sense(data: bytes) -> SenseMessage | None:
             tick=tick,
             t_ns=t_ns,
             lockstep=bool(flags & _LOCKSTEP),
+            radio_frames=radio_frames,
         )
     except (struct.error, TypeError):
         return None
@@ -133,7 +140,12 @@ def decode_sense(data: bytes) -> SenseMessage | None:
 def encode_act(message: ActMessage) -> bytes:
     bits = sum(1 << i for i, on in enumerate(message.enabled) if on)
     return _ACT.pack(
-        WIRE_VERSION, bits, int(message.watchdog_expired), 0, message.tick, *message.duty
+        WIRE_VERSION,
+        bits,
+        int(message.watchdog_expired),
+        min(message.radio_frames, 255),
+        message.tick,
+        *message.duty,
     )
 
 
@@ -141,7 +153,7 @@ def decode_act(data: bytes) -> ActMessage | None:
     try:
         if len(data) != _ACT.size:
             return None
-        version, bits, expired, _, tick, d0, d1, d2, d3 = _ACT.unpack(data)
+        version, bits, expired, radio_frames, tick, d0, d1, d2, d3 = _ACT.unpack(data)
         duty = (d0, d1, d2, d3)
         if version != WIRE_VERSION or bits > 0xF or expired > 1:
             return None
@@ -153,6 +165,7 @@ def decode_act(data: bytes) -> ActMessage | None:
             duty=duty,
             enabled=(enabled[0], enabled[1], enabled[2], enabled[3]),
             watchdog_expired=bool(expired),
+            radio_frames=radio_frames,
         )
     except (struct.error, TypeError):
         return None

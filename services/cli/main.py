@@ -7,13 +7,28 @@ scenario, missing file) prints one clear message and exits with status 2, never 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
+import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
+from pydantic import ValidationError
+
+from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from world.scenario import ScenarioError, load_scenario
 
 EXIT_USAGE = 2
+
+
+class UsageError(Exception):
+    """A user mistake or an unreachable swarm, reported in one line without a traceback."""
+
+
+DEFAULT_SCENARIO = "configs/scenarios/paper.yaml"
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
@@ -59,6 +74,198 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _install_stop(stop: threading.Event) -> None:
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+
+
+def _cmd_router(args: argparse.Namespace) -> int:
+    from services.router.main import run_router
+
+    return run_router(args.listen, Path(args.config) if args.config else None)
+
+
+def _cmd_world(args: argparse.Namespace) -> int:
+    from world.runtime import WorldConfig, WorldProcess
+
+    scenario_path = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
+    scenario = load_scenario(scenario_path)
+    try:
+        config = WorldConfig(
+            swarm=args.swarm or os.environ.get("SWARM_NAME", "lab"),
+            scenario=scenario_path,
+            connect=_endpoints(args.connect),
+            lockstep=args.lockstep,
+            duration_s=args.duration,
+            out_dir=Path(args.out) if args.out else None,
+            radio_profile=args.radio,
+        )
+    except ValidationError as exc:
+        raise UsageError(_validation_message("world", exc)) from None
+    world = WorldProcess(config, scenario)
+    _install_stop(world.stop)
+    return world.run()
+
+
+def _cmd_robot(args: argparse.Namespace) -> int:
+    from robot_firmware.runtime import RobotConfig, RobotProcess, describe_config_error
+
+    given = {
+        "name": args.name,
+        "swarm": args.swarm,
+        "scenario": args.scenario,
+        "connect": split_endpoints(args.connect) if args.connect else None,
+    }
+    try:
+        config = RobotConfig.from_sources(given)
+    except ValidationError as exc:
+        raise UsageError(describe_config_error(exc)) from None
+    robot = RobotProcess(config)
+    _install_stop(robot.stop)
+    return robot.run()
+
+
+def _cmd_up(args: argparse.Namespace) -> int:
+    from services.launcher.launcher import Launcher, LaunchPlan
+
+    scenario_path = Path(args.scenario)
+    scenario = load_scenario(scenario_path)
+    out_dir = Path(args.out)
+    endpoint = f"tcp/127.0.0.1:{args.port}"
+    plan = LaunchPlan(
+        scenario=scenario_path,
+        robots=scenario.robot_names,
+        out_dir=out_dir,
+        swarm=args.swarm,
+        endpoint=endpoint,
+        lockstep=args.lockstep,
+        duration_s=args.duration,
+        radio_profile=args.radio,
+    )
+    launcher = Launcher(plan)
+    _install_stop(launcher.stop)
+
+    def ready() -> None:
+        mode = "lockstep" if args.lockstep else "real time"
+        length = f"{args.duration} s" if args.duration else "until Ctrl-C"
+        print(
+            f"swarm {args.swarm}: {', '.join(scenario.robot_names)} on {endpoint} "
+            f"({mode}, {length})",
+            flush=True,
+        )
+        print(
+            f"logs: {out_dir / 'logs'}/<process>.log; summary: {out_dir / 'summary.json'}",
+            flush=True,
+        )
+        print(
+            "try: swarm status | swarm kill robot2 | swarm restart robot2 | "
+            "swarm net set --loss 0.2",
+            flush=True,
+        )
+
+    code = launcher.up(on_ready=ready)
+    summary = out_dir / "summary.json"
+    if summary.exists():
+        print(f"wrote {summary}")
+    return code
+
+
+def _admin(args: argparse.Namespace, target: str, verb: str, body: dict[str, object] | None):  # type: ignore[no-untyped-def]
+    from services.launcher.launcher import admin_request
+
+    endpoint = _endpoints(args.connect)[0]
+    reply = admin_request(args.swarm, endpoint, target, verb, body, timeout_s=args.timeout)
+    if reply is None:
+        raise UsageError(
+            f"no answer from {target} of swarm {args.swarm!r} at {endpoint} "
+            f"(is it running? start one with `swarm up`)"
+        )
+    return reply
+
+
+def _print_reply(reply: dict[str, object]) -> int:
+    print(json.dumps(reply, indent=2))
+    return 0 if reply.get("ok") else 1
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    return _print_reply(_admin(args, "launcher", "status", None))
+
+
+def _cmd_kill(args: argparse.Namespace) -> int:
+    return _print_reply(_admin(args, "launcher", "kill", {"robot": args.robot}))
+
+
+def _cmd_restart(args: argparse.Namespace) -> int:
+    return _print_reply(_admin(args, "launcher", "restart", {"robot": args.robot}))
+
+
+def _cmd_net(args: argparse.Namespace) -> int:
+    body: dict[str, object] | None = None
+    if args.action == "set":
+        if args.profile:
+            body = {"profile": args.profile}
+        else:
+            body = {
+                key: value
+                for key, value in (
+                    ("latency_ms", args.latency_ms),
+                    ("jitter_ms", args.jitter_ms),
+                    ("loss", args.loss),
+                )
+                if value is not None
+            }
+            if not body:
+                raise ScenarioError(
+                    "net set: give --profile or at least one of --latency-ms, --jitter-ms, --loss"
+                )
+    return _print_reply(_admin(args, "world", "net", body))
+
+
+def _cmd_regs(args: argparse.Namespace) -> int:
+    if args.address is None:
+        body: dict[str, object] = {"op": "dump"}
+    elif args.value is None:
+        body = {"op": "read", "address": args.address}
+    else:
+        body = {"op": "write", "address": args.address, "value": args.value}
+    reply = _admin(args, args.robot, "regs", body)
+    if not reply.get("ok"):
+        print(f"swarm regs: {reply.get('error')}", file=sys.stderr)
+        return 1
+    if "registers" in reply:
+        rows = reply["registers"]
+        assert isinstance(rows, list)
+        for row in rows:
+            print(
+                f"0x{row['address']:08X}  {row['peripheral'] + '.' + row['register']:<28} "
+                f"{row['access']:<4} 0x{row['value']:08X}"
+            )
+    else:
+        print(f"0x{reply['address']:08X}  {reply.get('name')}  0x{reply['value']:08X}")
+    return 0
+
+
+def _int_literal(text: str) -> int:
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not an integer (use 0x... for hex)"
+        ) from None
+
+
+def _endpoints(given: str | None) -> list[str]:
+    return split_endpoints(given or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT))
+
+
+def _validation_message(what: str, error: ValidationError) -> str:
+    lines = [f"invalid {what} settings:"]
+    for item in error.errors(include_url=False):
+        lines.append(f"  {'.'.join(str(p) for p in item['loc'])}: {item['msg']}")
+    return "\n".join(lines)
+
+
 def _cm(value: object) -> str:
     if value is None:
         return "n/a"
@@ -93,10 +300,154 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sim.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     sim.set_defaults(handler=_cmd_sim)
+
+    def swarm_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--swarm",
+            default=os.environ.get("SWARM_NAME", "lab"),
+            help="swarm name, the first chunk of every key (default: lab, $SWARM_NAME)",
+        )
+        p.add_argument(
+            "--connect",
+            metavar="ENDPOINTS",
+            help=f"router endpoint(s), comma separated (default: {DEFAULT_ENDPOINT}, "
+            "$ZENOH_CONNECT)",
+        )
+
+    up = sub.add_parser(
+        "up",
+        help="start router, world and one process per robot, and supervise them",
+        description=(
+            "Start the swarm locally without Docker: a Zenoh router, the world process and one "
+            "process per robot of the scenario, each logging to DIR/logs. Stops everything on "
+            "Ctrl-C or after --duration and leaves DIR/summary.json. While it runs, "
+            "`swarm status`, `swarm kill ROBOT`, `swarm restart ROBOT`, `swarm net set` and "
+            "`swarm regs ROBOT` act on it."
+        ),
+    )
+    up.add_argument(
+        "--scenario",
+        default=DEFAULT_SCENARIO,
+        metavar="FILE",
+        help=f"scenario YAML (default: {DEFAULT_SCENARIO})",
+    )
+    up.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="simulated seconds to run (default: until Ctrl-C)",
+    )
+    up.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="the world waits for every live robot each tick (deterministic)",
+    )
+    up.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
+    up.add_argument(
+        "--out",
+        default="runs/swarm",
+        metavar="DIR",
+        help="run directory for logs and summary.json (default: runs/swarm)",
+    )
+    up.add_argument("--radio", metavar="PROFILE", help="radio profile to start with")
+    up.add_argument("--swarm", default="lab", help="swarm name (default: lab)")
+    up.add_argument("--port", type=int, default=7447, help="router TCP port on 127.0.0.1")
+    up.set_defaults(handler=_cmd_up)
+
+    for name, text, handler in (
+        ("status", "show the processes of a running swarm", _cmd_status),
+        ("kill", "SIGKILL a robot of a running swarm (a power cut)", _cmd_kill),
+        ("restart", "start a robot of a running swarm again", _cmd_restart),
+    ):
+        cmd = sub.add_parser(name, help=text, description=text + ".")
+        if name != "status":
+            cmd.add_argument("robot", help="robot name, e.g. robot2")
+        swarm_options(cmd)
+        cmd.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for an answer")
+        cmd.set_defaults(handler=handler)
+
+    net = sub.add_parser(
+        "net",
+        help="show or change the radio medium's link profile while the swarm runs",
+        description=(
+            "`swarm net get` prints the running link profile; `swarm net set` changes it: "
+            "--profile NAME (ideal, lab, lossy, bursty) or any of --latency-ms, --jitter-ms, "
+            "--loss. An invalid request is refused and the running profile stays."
+        ),
+    )
+    net.add_argument("action", choices=["get", "set"])
+    net.add_argument("--profile", help="a named profile")
+    net.add_argument("--latency-ms", type=float)
+    net.add_argument("--jitter-ms", type=float)
+    net.add_argument("--loss", type=float, help="loss probability, 0..1")
+    swarm_options(net)
+    net.add_argument("--timeout", type=float, default=3.0)
+    net.set_defaults(handler=_cmd_net)
+
+    regs = sub.add_parser(
+        "regs",
+        help="read or write a live robot's FPGA registers (like devmem)",
+        description=(
+            "With only ROBOT, dump every register by name (stored bits, no side effects). With "
+            "ADDR, do one bus read; with ADDR and VALUE, one bus write. Addresses and values "
+            "take 0x... hex. A refused access is reported as the bus error it is."
+        ),
+    )
+    regs.add_argument("robot")
+    regs.add_argument("address", nargs="?", type=_int_literal, metavar="ADDR")
+    regs.add_argument("value", nargs="?", type=_int_literal, metavar="VALUE")
+    swarm_options(regs)
+    regs.add_argument("--timeout", type=float, default=3.0)
+    regs.set_defaults(handler=_cmd_regs)
+
+    world = sub.add_parser(
+        "world",
+        help="run the world process (physics, sensors, radio medium)",
+        description="The world process of a swarm; `swarm up` starts it for you.",
+    )
+    world.add_argument("--scenario", metavar="FILE", help="scenario YAML ($SWARM_SCENARIO)")
+    world.add_argument("--lockstep", action="store_true")
+    world.add_argument("--duration", type=float, metavar="S")
+    world.add_argument("--out", metavar="DIR", help="where to write summary.json")
+    world.add_argument("--radio", metavar="PROFILE", help="override the scenario's radio profile")
+    swarm_options(world)
+    world.set_defaults(handler=_cmd_world)
+
+    robot = sub.add_parser(
+        "robot",
+        help="run one robot process (fabric + firmware)",
+        description=(
+            "One robot: the FPGA register model and the firmware. Settings fall back to "
+            "$ROBOT_NAME (or $ROBOT_ID), $SWARM_SCENARIO, $SWARM_NAME, $ZENOH_CONNECT and "
+            "$SWARM_KEY (the swarm's frame authentication secret)."
+        ),
+    )
+    robot.add_argument("--name", help="robot name, e.g. robot1")
+    robot.add_argument("--scenario", metavar="FILE")
+    swarm_options(robot)
+    robot.set_defaults(handler=_cmd_robot)
+
+    router = sub.add_parser(
+        "router",
+        help="run the swarm's Zenoh router",
+        description="A Zenoh router (configs/zenoh/router.json5 works with zenohd too).",
+    )
+    router.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on (repeatable), e.g. tcp/127.0.0.1:7447",
+    )
+    router.add_argument("--config", metavar="FILE", help="json5 router config")
+    router.set_defaults(handler=_cmd_router)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    logging.basicConfig(
+        level=os.environ.get("SWARM_LOG_LEVEL", "INFO"),
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -104,7 +455,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         code: int = args.handler(args)
-    except ScenarioError as exc:
+    except (ScenarioError, UsageError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

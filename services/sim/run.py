@@ -15,8 +15,8 @@ import numpy as np
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from services.sim.batch import run_batch
 from services.sim.figures import write_figures
-from services.sim.summary import build_summary, controller_label, write_json_atomically
 from world.scenario import Scenario, load_rule_base
+from world.summary import build_summary, controller_label, write_json_atomically
 
 
 @dataclass(frozen=True)

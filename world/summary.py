@@ -1,4 +1,4 @@
-"""summary.json of a run: the schema is documented in docs/summary-schema.md.
+"""summary.json of a run (swarm sim and the world process): schema in docs/summary-schema.md.
 
 Only simulated quantities go in, never wall-clock figures, so equal seeds give equal files.
 Files are written atomically (temporary file, then rename): a killed process leaves either the

@@ -1,0 +1,1 @@
+"""`swarm up` and friends: start, supervise, kill and restart a swarm's processes locally."""

@@ -1,0 +1,255 @@
+"""Local launcher: router, world and one process per robot, without Docker.
+
+`Launcher.up` starts the router, the world and every robot of the scenario as child processes
+(`python -m services.cli.main ...`), each logging to `<out>/logs/<name>.log`, and supervises
+them until the world ends (its `--duration`), Ctrl-C or SIGTERM, then stops everything in
+order (robots, world, router), leaving `<out>/summary.json` from the world.
+
+While it runs, the launcher answers admin queries on `swarm/<swarm>/admin/launcher/<verb>`:
+`status` (processes and PIDs), `kill` (SIGKILL a robot: a power cut) and `restart` (start a
+robot again, killing it first if it still runs).  `swarm status|kill|restart` send them.
+The process factory is injectable so tests can substitute their own.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import zenoh
+
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.session import open_client
+
+log = logging.getLogger("swarm.launcher")
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    log_path: Path
+    process: subprocess.Popen[bytes] | None = None
+    log_file: IO[bytes] | None = None
+    restarts: int = 0
+    killed: bool = False
+
+    @property
+    def running(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+
+ProcessFactory = Callable[[list[str], IO[bytes], dict[str, str]], "subprocess.Popen[bytes]"]
+
+
+def default_factory(
+    argv: list[str], log: IO[bytes], env: dict[str, str]
+) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        argv, stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT, start_new_session=True
+    )
+
+
+@dataclass
+class LaunchPlan:
+    scenario: Path
+    robots: Sequence[str]
+    out_dir: Path
+    swarm: str = "lab"
+    endpoint: str = "tcp/127.0.0.1:7447"
+    lockstep: bool = False
+    duration_s: float | None = None
+    radio_profile: str | None = None
+    extra_env: dict[str, str] = field(default_factory=dict)
+
+
+class Launcher:
+    def __init__(self, plan: LaunchPlan, factory: ProcessFactory = default_factory) -> None:
+        self.plan = plan
+        self.factory = factory
+        self.keys = SwarmKeys(plan.swarm)
+        self.children: dict[str, Child] = {}
+        self.stop = threading.Event()
+        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        logs = plan.out_dir / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        cli = [sys.executable, "-m", "services.cli.main"]
+        connect = ["--connect", plan.endpoint, "--swarm", plan.swarm]
+        self.children["router"] = Child(
+            "router", [*cli, "router", "--listen", plan.endpoint], logs / "router.log"
+        )
+        world = [
+            *cli,
+            "world",
+            "--scenario",
+            str(plan.scenario),
+            *connect,
+            "--out",
+            str(plan.out_dir),
+        ]
+        if plan.lockstep:
+            world.append("--lockstep")
+        if plan.duration_s is not None:
+            world += ["--duration", str(plan.duration_s)]
+        if plan.radio_profile is not None:
+            world += ["--radio", plan.radio_profile]
+        self.children["world"] = Child("world", world, logs / "world.log")
+        for name in plan.robots:
+            argv = [*cli, "robot", "--name", name, "--scenario", str(plan.scenario), *connect]
+            self.children[name] = Child(name, argv, logs / f"{name}.log")
+
+    def _env(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env.update(self.plan.extra_env)
+        env["PYTHONUNBUFFERED"] = "1"
+        return env
+
+    def start(self, name: str) -> None:
+        child = self.children[name]
+        if child.log_file is None:
+            child.log_file = child.log_path.open("ab")
+        child.process = self.factory(child.argv, child.log_file, self._env())
+        child.killed = False
+        log.info("started %s (pid %d)", name, child.process.pid)
+
+    def kill(self, name: str) -> bool:
+        """SIGKILL, as a power cut: no clean-up runs in the child."""
+        child = self.children[name]
+        if not child.running or child.process is None:
+            return False
+        child.process.kill()
+        child.process.wait()
+        child.killed = True
+        return True
+
+    def restart(self, name: str) -> None:
+        self.kill(name)
+        self.children[name].restarts += 1
+        self.start(name)
+
+    def status(self) -> dict[str, Any]:
+        return {
+            name: {
+                "pid": child.process.pid if child.process else None,
+                "running": child.running,
+                "exit_code": None
+                if child.process is None or child.running
+                else child.process.returncode,
+                "killed": child.killed,
+                "restarts": child.restarts,
+                "log": str(child.log_path),
+            }
+            for name, child in self.children.items()
+        }
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        self._queries.put(query)
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                query = self._queries.get_nowait()
+            except queue.Empty:
+                return
+            verb = SwarmKeys.last_chunk(str(query.key_expr))
+            try:
+                body = json.loads(query.payload.to_bytes()) if query.payload is not None else {}
+            except ValueError:
+                body = None
+            reply: dict[str, Any]
+            if verb == "status":
+                reply = {"ok": True, "processes": self.status()}
+            elif verb in ("kill", "restart"):
+                name = body.get("robot") if isinstance(body, dict) else None
+                if not isinstance(name, str) or name not in self.plan.robots:
+                    reply = {
+                        "ok": False,
+                        "error": f"no robot {name!r}; robots: {list(self.plan.robots)}",
+                    }
+                elif verb == "kill":
+                    reply = {"ok": True, "killed": self.kill(name)}
+                else:
+                    self.restart(name)
+                    process = self.children[name].process
+                    reply = {"ok": True, "restarted": name, "pid": process.pid if process else None}
+            else:
+                reply = {"ok": False, "error": f"unknown verb {verb!r}; use status, kill, restart"}
+            query.reply(query.key_expr, json.dumps(reply).encode())
+
+    def up(self, on_ready: Callable[[], None] | None = None) -> int:
+        """Start everything and supervise until the world ends or a stop is asked."""
+        self.start("router")
+        with open_client([self.plan.endpoint]) as session:
+            session.declare_queryable(self.keys.admin("launcher", "*"), self._on_query)
+            token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
+            self.start("world")
+            for name in self.plan.robots:
+                self.start(name)
+            if on_ready is not None:
+                on_ready()
+            code = 0
+            try:
+                while not self.stop.is_set():
+                    self._serve()
+                    world = self.children["world"]
+                    if world.process is not None and world.process.poll() is not None:
+                        code = world.process.returncode
+                        break
+                    if not self.children["router"].running:
+                        log.error("the router exited; stopping")
+                        code = 1
+                        break
+                    time.sleep(0.05)
+            finally:
+                token.undeclare()
+                self.shutdown()
+        return code
+
+    def shutdown(self, grace_s: float = 5.0) -> None:
+        order = [n for n in self.plan.robots] + ["world", "router"]
+        for name in order:
+            child = self.children[name]
+            if child.running and child.process is not None:
+                child.process.send_signal(signal.SIGTERM)
+                try:
+                    child.process.wait(timeout=grace_s)
+                except subprocess.TimeoutExpired:
+                    child.process.kill()
+                    child.process.wait()
+            if child.log_file is not None:
+                child.log_file.close()
+                child.log_file = None
+
+
+def admin_request(
+    swarm: str,
+    endpoint: str,
+    target: str,
+    verb: str,
+    body: dict[str, Any] | None = None,
+    timeout_s: float = 3.0,
+) -> dict[str, Any] | None:
+    """Ask a running swarm's process one admin question; None when nobody answers."""
+    keys = SwarmKeys(swarm)
+    config_endpoint = [endpoint]
+    with open_client(config_endpoint) as session:
+        payload = json.dumps(body).encode() if body is not None else None
+        replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
+        for reply in replies:
+            if reply.ok is not None:
+                data = json.loads(reply.ok.payload.to_bytes())
+                return data if isinstance(data, dict) else {"ok": False, "error": "bad reply"}
+    return None

@@ -1,0 +1,1 @@
+"""`swarm router`: the swarm's Zenoh router (Python zenoh in router mode)."""

@@ -1,0 +1,34 @@
+"""Run a Zenoh router from a json5 config until SIGTERM or Ctrl-C.
+
+The same config file works with a stock `zenohd -c configs/zenoh/router.json5`.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+import zenoh
+
+from robot_firmware.net.session import router_config
+
+log = logging.getLogger("swarm.router")
+
+
+def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
+    zenoh.init_log_from_env_or("error")
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    config = router_config(listen, config_file)
+    with zenoh.open(config) as session:
+        log.info("router up, zid %s", session.info.zid())
+        print(
+            f"router listening on {', '.join(listen) if listen else 'the config endpoints'}",
+            flush=True,
+        )
+        stop.wait()
+    return 0

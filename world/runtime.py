@@ -1,0 +1,413 @@
+"""The world process: physics, sensors and the radio medium of a swarm, served over Zenoh.
+
+It owns a `WorldEngine` and talks to the robots only through their pins and the radio:
+publishes `wire/<robot>/sense`, reads `wire/<robot>/act`, forwards `radio/tx/<robot>` frames to
+the other robots' `radio/rx/<robot>` after the link profile's delay (or drops them), and
+publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what arrives.
+
+Clock modes:
+* real time (default): physics in 1 ms steps paced by the monotonic clock, sense messages every
+  control period; a body whose last act message is older than `act_timeout_ms` is braked;
+* lockstep: per control period the world sends every robot its sense message with the tick
+  number and waits until every *live* robot (liveliness token present) has answered that tick,
+  then advances the physics by one period.  A robot that disappears leaves the barrier at once
+  and is braked; one that comes back is waited for again from its next answer on.
+
+At the end (duration reached, SIGTERM or Ctrl-C) and every few seconds meanwhile the world
+writes `summary.json` with the schema of `swarm sim`, plus radio counters and the robots'
+control-loop timing, atomically.  Admin queryables: `admin/world/status`, `admin/world/net`
+(get the link profile, or set it with a JSON body; an invalid one is refused and changes
+nothing).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
+
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
+from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, encode_clock, encode_sense
+from world.engine import NS_PER_S, WorldEngine
+from world.radio import PROFILES, LinkProfile
+from world.scenario import Scenario, load_rule_base
+from world.summary import build_summary, write_json_atomically
+
+log = logging.getLogger("swarm.world")
+
+PHYSICS_STEP_NS = 1_000_000
+
+
+class WorldConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    swarm: str = "lab"
+    scenario: Path
+    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
+    zenoh_config: Path | None = None
+    lockstep: bool = False
+    duration_s: PositiveFloat | None = None
+    out_dir: Path | None = None
+    act_timeout_ms: PositiveFloat = 100.0
+    truth_rate_hz: PositiveFloat = 20.0
+    summary_every_s: PositiveFloat = 5.0
+    radio_profile: str | None = None
+    start_timeout_s: PositiveFloat = 30.0
+
+
+class WorldProcess:
+    def __init__(self, config: WorldConfig, scenario: Scenario) -> None:
+        if config.radio_profile is not None:
+            radio = scenario.radio.model_copy(update={"profile": config.radio_profile})
+            scenario = scenario.model_copy(update={"radio": radio})
+        self.config = config
+        self.scenario = scenario
+        self.engine = WorldEngine(scenario)
+        self.keys = SwarmKeys(config.swarm)
+        self.names = scenario.robot_names
+        self.index = {name: i for i, name in enumerate(self.names)}
+        self.period_ns = round(scenario.controller_params().control_period_s * NS_PER_S)
+        self.duty = np.zeros((len(self.names), 4))
+        self.act_seen_mono_ns = np.full(len(self.names), -(10**18), dtype=np.int64)
+        self.act_tick = np.full(len(self.names), -1, dtype=np.int64)
+        self.live: set[str] = set()
+        self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
+        self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
+        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._wake = threading.Event()
+        self.stop = threading.Event()
+        self.malformed_acts = 0
+        self.unknown_senders = 0
+        self.frames_owed = np.zeros(len(self.names), dtype=np.int64)
+        self._held_frames: list[tuple[int, bytes]] = []
+        self.timing: dict[str, dict[str, Any]] = {}
+        self.tick = 0
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self.rule_count_total = int(np.asarray(load_rule_base(scenario).rule_count)) * len(
+            self.names
+        )
+
+    # -- callbacks -----------------------------------------------------------------------
+
+    def _on_act(self, sample: zenoh.Sample) -> None:
+        robot = SwarmKeys.chunk(str(sample.key_expr), 3)
+        self._acts.put((robot, sample.payload.to_bytes(), time.monotonic_ns()))
+        self._wake.set()
+
+    def _on_frame(self, sample: zenoh.Sample) -> None:
+        self._frames.put((SwarmKeys.last_chunk(str(sample.key_expr)), sample.payload.to_bytes()))
+        self._wake.set()
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        name = SwarmKeys.last_chunk(str(sample.key_expr))
+        self._liveliness.put((name, sample.kind == zenoh.SampleKind.PUT))
+        self._wake.set()
+
+    def _on_telemetry(self, sample: zenoh.Sample) -> None:
+        try:
+            data = json.loads(sample.payload.to_bytes())
+            if isinstance(data, dict) and isinstance(data.get("timing"), dict):
+                self.timing[str(data.get("robot"))] = data["timing"]
+        except (ValueError, UnicodeDecodeError):
+            pass
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        self._queries.put(query)
+
+    # -- queues, drained by the main loop ------------------------------------------------
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                name, alive = self._liveliness.get_nowait()
+            except queue.Empty:
+                break
+            if name in self.index:
+                (self.live.add if alive else self.live.discard)(name)
+                log.info("robot %s %s", name, "joined" if alive else "left")
+        while True:
+            try:
+                robot, raw, arrival = self._acts.get_nowait()
+            except queue.Empty:
+                break
+            act = decode_act(raw)
+            i = self.index.get(robot)
+            if act is None or i is None:
+                self.malformed_acts += 1
+                continue
+            self._apply_act(i, act, arrival)
+        frames: list[tuple[int, bytes]] = []
+        while True:
+            try:
+                sender, payload = self._frames.get_nowait()
+            except queue.Empty:
+                break
+            j = self.index.get(sender)
+            if j is None:
+                self.unknown_senders += 1
+                continue
+            frames.append((j, payload))
+            self.frames_owed[j] -= 1
+        # Deterministic order within one step: by sender index, then arrival.
+        self._held_frames.extend(frames)
+        if not self.config.lockstep:
+            self._transmit_held()
+        self._serve_queries()
+
+    def _transmit_held(self) -> None:
+        for j, payload in sorted(self._held_frames, key=lambda item: item[0]):
+            self.engine.transmit(j, payload)
+        self._held_frames.clear()
+
+    def _apply_act(self, i: int, act: ActMessage, arrival_mono_ns: int) -> None:
+        self.frames_owed[i] += act.radio_frames
+        self.duty[i] = np.where(act.enabled, act.duty, 0.0)
+        self.act_seen_mono_ns[i] = arrival_mono_ns
+        self.act_tick[i] = act.tick
+
+    def _publish_sense(self, lockstep: bool, delivered: list[int]) -> None:
+        for i, (name, message) in enumerate(zip(self.names, self.engine.sense(), strict=True)):
+            message = replace(
+                message,
+                tick=self.tick,
+                t_ns=self.engine.t_ns,
+                lockstep=lockstep,
+                radio_frames=delivered[i],
+            )
+            self._publishers[name].put(encode_sense(message))
+
+    def _deliver_radio(self, session: zenoh.Session) -> list[int]:
+        delivered = [0] * len(self.names)
+        for receiver, _sender, payload in self.engine.due_frames():
+            session.put(self.keys.radio_rx(self.names[receiver]), payload)
+            delivered[receiver] += 1
+        return delivered
+
+    def _braked_duty(self, now_mono_ns: int) -> np.ndarray:
+        stale = now_mono_ns - self.act_seen_mono_ns > self.config.act_timeout_ms * 1e6
+        dead = np.array([name not in self.live for name in self.names])
+        return np.where((stale | dead)[:, None], 0.0, self.duty)
+
+    # -- main loop -------------------------------------------------------------------------
+
+    def run(self) -> int:
+        cfg = self.config
+        with open_client(cfg.connect, cfg.zenoh_config) as session:
+            keys = self.keys
+            session.declare_subscriber(keys.act_all, self._on_act)
+            session.declare_subscriber(keys.radio_tx_all, self._on_frame)
+            session.declare_subscriber(keys.telemetry_all, self._on_telemetry)
+            session.liveliness().declare_subscriber(
+                keys.alive_all("robot"), self._on_alive, history=True
+            )
+            session.declare_queryable(keys.admin("world", "*"), self._on_query)
+            self._publishers = {n: session.declare_publisher(keys.sense(n)) for n in self.names}
+            clock_pub = session.declare_publisher(keys.clock)
+            truth_pub = session.declare_publisher(keys.truth)
+            token = session.liveliness().declare_token(keys.alive("world", "world"))
+            log.info(
+                "world up: %d robots, %s, radio %s",
+                len(self.names),
+                "lockstep" if cfg.lockstep else "real time",
+                self.scenario.radio.profile,
+            )
+            try:
+                if cfg.lockstep:
+                    self._run_lockstep(session, clock_pub, truth_pub)
+                else:
+                    self._run_realtime(session, clock_pub, truth_pub)
+            finally:
+                self.write_summary()
+                token.undeclare()
+        return 0
+
+    def _end_tick(self) -> int | None:
+        if self.config.duration_s is None:
+            return None
+        return round(self.config.duration_s * NS_PER_S / self.period_ns)
+
+    def _run_lockstep(
+        self, session: zenoh.Session, clock_pub: zenoh.Publisher, truth_pub: zenoh.Publisher
+    ) -> None:
+        end = self._end_tick()
+        deadline = time.monotonic() + self.config.start_timeout_s
+        while not self.stop.is_set() and len(self.live) < len(self.names):
+            self._drain()  # wait for the robots to come up before time starts
+            if time.monotonic() > deadline:
+                log.warning("starting with %d of %d robots", len(self.live), len(self.names))
+                break
+            self._wake.wait(0.05)
+            self._wake.clear()
+        next_summary = time.monotonic() + self.config.summary_every_s
+        while not self.stop.is_set() and (end is None or self.tick < end):
+            self._drain()
+            self._publish_sense(lockstep=True, delivered=self._deliver_radio(session))
+            clock_pub.put(
+                encode_clock(ClockMessage(self.tick, self.engine.t_ns, self.period_ns, True))
+            )
+            waiting = set(self.live)
+            while waiting and not self.stop.is_set():
+                self._wake.wait(0.05)
+                self._wake.clear()
+                self._drain()
+                # A robot is done with this tick when its act has come, and the frames it
+                # announced in it too.
+                waiting = {
+                    n
+                    for n in self.live
+                    if self.act_tick[self.index[n]] < self.tick
+                    or self.frames_owed[self.index[n]] > 0
+                }
+            self._drain()
+            self._transmit_held()
+            dead = np.array([name not in self.live for name in self.names])
+            self.engine.advance(np.where(dead[:, None], 0.0, self.duty), self.period_ns)
+            self.tick += 1
+            self._publish_truth(truth_pub)
+            if time.monotonic() >= next_summary:
+                next_summary += self.config.summary_every_s
+                self.write_summary()
+
+    def _run_realtime(
+        self, session: zenoh.Session, clock_pub: zenoh.Publisher, truth_pub: zenoh.Publisher
+    ) -> None:
+        end = self._end_tick()
+        steps_per_period = self.period_ns // PHYSICS_STEP_NS
+        start = time.monotonic_ns()
+        next_summary = time.monotonic() + self.config.summary_every_s
+        step = 0
+        while not self.stop.is_set() and (end is None or self.tick < end):
+            target = start + step * PHYSICS_STEP_NS
+            now = time.monotonic_ns()
+            if now < target:
+                time.sleep((target - now) / NS_PER_S)
+                continue
+            self._drain()
+            if step % steps_per_period == 0:
+                self._publish_sense(lockstep=False, delivered=self._deliver_radio(session))
+                clock_pub.put(
+                    encode_clock(ClockMessage(self.tick, self.engine.t_ns, self.period_ns, False))
+                )
+            self.engine.advance(self._braked_duty(time.monotonic_ns()), PHYSICS_STEP_NS)
+            step += 1
+            if step % steps_per_period == 0:
+                self.tick += 1
+                self._publish_truth(truth_pub)
+            if time.monotonic() >= next_summary:
+                next_summary += self.config.summary_every_s
+                self.write_summary()
+
+    def _publish_truth(self, truth_pub: zenoh.Publisher) -> None:
+        every = max(1, round(NS_PER_S / (self.config.truth_rate_hz * self.period_ns)))
+        if self.tick % every:
+            return
+        engine = self.engine
+        reference, _ = engine.trajectory.evaluate(engine.t_s)
+        truth = {
+            "t_s": engine.t_s,
+            "tick": self.tick,
+            "robots": {
+                name: {
+                    "pose": [float(v) for v in engine.bodies.pose[i]],
+                    "alive": name in self.live,
+                }
+                for i, name in enumerate(self.names)
+            },
+            "reference": [float(v) for v in reference],
+            "radio": self.radio_stats(),
+        }
+        truth_pub.put(json.dumps(truth).encode())
+
+    def radio_stats(self) -> dict[str, Any]:
+        radio = self.engine.radio
+        p50 = radio.latency_percentile_ms(50)
+        p99 = radio.latency_percentile_ms(99)
+        frames = radio.delivered + radio.dropped
+        return {
+            "profile": self.engine.link.model_dump(exclude_none=True),
+            "broadcasts": radio.sent,
+            "frames": frames,
+            "delivered": radio.delivered,
+            "dropped": radio.dropped,
+            "delivery_ratio": None if frames == 0 else round(radio.delivered / frames, 6),
+            "latency_p50_ms": None if p50 is None else round(p50, 3),
+            "latency_p99_ms": None if p99 is None else round(p99, 3),
+        }
+
+    def summary(self) -> dict[str, object]:
+        scenario = self.scenario.model_copy(update={"duration_s": max(self.engine.t_s, 1e-9)})
+        radio = self.radio_stats()
+        summary = build_summary(
+            scenario,
+            self.engine.summary(),
+            scenario.controller_params().fuzzy_enabled,
+            self.rule_count_total,
+            radio["broadcasts"],
+            radio["delivered"],
+        )
+        summary["radio"] = {"profile_name": str(self.scenario.radio.profile), **radio}
+        summary["clock_mode"] = "lockstep" if self.config.lockstep else "real_time"
+        summary["control_timing"] = {name: self.timing.get(name) for name in self.names}
+        summary["malformed_acts"] = self.malformed_acts
+        return summary
+
+    def write_summary(self) -> None:
+        if self.config.out_dir is not None:
+            write_json_atomically(self.config.out_dir / "summary.json", self.summary())
+
+    def _serve_queries(self) -> None:
+        while True:
+            try:
+                query = self._queries.get_nowait()
+            except queue.Empty:
+                return
+            verb = SwarmKeys.last_chunk(str(query.key_expr))
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            reply: dict[str, Any]
+            if verb == "net":
+                reply = self._net_request(payload)
+            elif verb == "status":
+                reply = {
+                    "ok": True,
+                    "t_s": self.engine.t_s,
+                    "tick": self.tick,
+                    "clock_mode": "lockstep" if self.config.lockstep else "real_time",
+                    "live": sorted(self.live),
+                    "robots": list(self.names),
+                    "radio": self.radio_stats(),
+                    "metrics": self.engine.summary(),
+                }
+            else:
+                reply = {"ok": False, "error": f"unknown admin verb {verb!r}; use status or net"}
+            query.reply(query.key_expr, json.dumps(reply).encode())
+
+    def _net_request(self, payload: bytes) -> dict[str, Any]:
+        if not payload:
+            return {"ok": True, "profile": self.engine.link.model_dump(exclude_none=True)}
+        try:
+            request = json.loads(payload)
+            if isinstance(request, dict) and set(request) == {"profile"}:
+                name = request["profile"]
+                if name not in PROFILES:
+                    known = ", ".join(sorted(PROFILES))
+                    return {"ok": False, "error": f"unknown profile {name!r}; known: {known}"}
+                profile = PROFILES[name]
+            else:
+                merged = {**self.engine.link.model_dump(exclude_none=True), **request}
+                profile = LinkProfile.model_validate(merged)
+        except (ValueError, TypeError, ValidationError) as exc:
+            return {"ok": False, "error": f"invalid network profile: {exc}"}
+        self.engine.link = profile
+        log.info("radio profile set to %s", profile.model_dump(exclude_none=True))
+        return {"ok": True, "profile": profile.model_dump(exclude_none=True)}
