@@ -20,6 +20,7 @@ its own rate.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import os
@@ -116,19 +117,25 @@ class LoopTiming:
     ticks: int = 0
     deadline_misses: int = 0
     jitter_ns: deque[int] = field(default_factory=lambda: deque(maxlen=20_000))
+    recent_miss_ticks: deque[int] = field(default_factory=lambda: deque(maxlen=10))
 
     def record(self, period_ns: int, overran: bool) -> None:
         self.ticks += 1
         self.jitter_ns.append(abs(period_ns - self.period_ns))
         if overran:
             self.deadline_misses += 1
+            self.recent_miss_ticks.append(self.ticks)
 
-    def as_dict(self) -> dict[str, float | int | None]:
-        p99 = float(np.percentile(self.jitter_ns, 99)) / 1e6 if self.jitter_ns else None
+    def jitter_p99_ms(self) -> float | None:
+        return float(np.percentile(self.jitter_ns, 99)) / 1e6 if self.jitter_ns else None
+
+    def as_dict(self, p99: float | None = None) -> dict[str, Any]:
+        """Counters; pass a p99 computed earlier to keep this cheap inside the loop."""
         return {
             "ticks": self.ticks,
             "deadline_misses": self.deadline_misses,
-            "period_jitter_p99_ms": p99,
+            "period_jitter_p99_ms": self.jitter_p99_ms() if p99 is None else p99,
+            "recent_miss_ticks": list(self.recent_miss_ticks),
         }
 
 
@@ -167,6 +174,8 @@ class RobotProcess:
         self._fabric_time_ns = 0
         self._telemetry_period_ns = round(NS_PER_S / config.telemetry_rate_hz)
         self._next_telemetry_ns = 0
+        self._telemetry_count = 0
+        self._jitter_p99_ms: float | None = None
         self.last_report: TickReport | None = None
 
     # -- callbacks (zenoh threads): queue and return -------------------------------------
@@ -196,6 +205,8 @@ class RobotProcess:
             telemetry_pub = session.declare_publisher(self.keys.telemetry(name))
             token = session.liveliness().declare_token(self.keys.alive("robot", name))
             self.firmware.boot(self._tick_fabric)
+            gc.collect()
+            gc.freeze()  # boot-time objects leave the collector's work: shorter pauses in the loop
             log.info("robot %s up (%s)", name, "leader" if self.mission.is_leader else "follower")
             next_deadline = time.monotonic_ns()
             last_start = None
@@ -319,6 +330,9 @@ class RobotProcess:
         )
         if now_ns >= self._next_telemetry_ns:
             self._next_telemetry_ns = now_ns + self._telemetry_period_ns
+            self._telemetry_count += 1
+            if self._telemetry_count % 20 == 1:  # the percentile is refreshed about once a second
+                self._jitter_p99_ms = self.timing.jitter_p99_ms()
             telemetry_pub.put(json.dumps(self.telemetry(now_ns)).encode())
 
     def telemetry(self, now_ns: int) -> dict[str, Any]:
@@ -333,7 +347,7 @@ class RobotProcess:
             "frames": self.firmware.decoder.counters.as_dict(),
             "bus_errors": self.drivers.bus_errors,
             "malformed_sense": self.malformed_sense,
-            "timing": self.timing.as_dict(),
+            "timing": self.timing.as_dict(self._jitter_p99_ms),
         }
         if report is not None:
             o = report.outputs

@@ -15,6 +15,7 @@ quantities.
 from __future__ import annotations
 
 import heapq
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,10 +47,12 @@ class _Frame:
 
 @dataclass
 class RadioCounters:
+    """Frames broadcast, delivered and dropped; latencies of the most recent deliveries."""
+
     sent: int = 0
     delivered: int = 0
     dropped: int = 0
-    latencies_ns: list[int] = field(default_factory=list)
+    latencies_ns: deque[int] = field(default_factory=lambda: deque(maxlen=50_000))
 
     def latency_percentile_ms(self, q: float) -> float | None:
         if not self.latencies_ns:
@@ -213,6 +216,10 @@ class WorldEngine:
                     payload=payload,
                 ),
             )
+
+    def next_frame_due_ns(self) -> int | None:
+        """When the next queued frame arrives (simulation ns), or None."""
+        return self._queue[0].arrival_ns if self._queue else None
 
     def due_frames(self) -> list[tuple[int, int, bytes]]:
         """Frames that have arrived by now, as (receiver, sender, payload), oldest first."""

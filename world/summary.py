@@ -85,7 +85,12 @@ def _clean(value: object) -> object:
     return value
 
 
-def write_json_atomically(path: Path, data: object) -> None:
+def write_json_atomically(path: Path, data: object, durable: bool = True) -> None:
+    """Write JSON via a temporary file and a rename, so readers never see half a file.
+
+    durable=False skips the fsync: the file still survives a killed process (the page cache
+    keeps it), only not a power cut; periodic checkpoints of a live run use that.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(_clean(data), indent=2, sort_keys=False, allow_nan=False) + "\n"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
@@ -93,7 +98,8 @@ def write_json_atomically(path: Path, data: object) -> None:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
             handle.flush()
-            os.fsync(handle.fileno())
+            if durable:
+                os.fsync(handle.fileno())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

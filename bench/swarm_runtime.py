@@ -1,0 +1,233 @@
+"""The networked swarm's runtime figures (not a test: prints tables).
+
+* lockstep speed-up: simulated seconds per wall second of `swarm up --lockstep`, 3 robots;
+* real time: control-loop deadline misses and period jitter per robot over 32 s runs;
+* CPU per process (router, world, each robot) during a real-time run, from /proc;
+* radio one-hop overhead with the ideal profile: a frame from `radio/tx/robot1` through the
+  world to `radio/rx/robot2`, next to a raw Zenoh ping-pong through the same router.
+
+Every figure is the median of several runs; machine and date are printed.
+
+    .venv/bin/python bench/swarm_runtime.py [--runs 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.session import open_client
+from services.launcher.launcher import admin_request
+
+ROOT = Path(__file__).resolve().parents[1]
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _start(out: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "up",
+            "--out",
+            str(out),
+            "--port",
+            str(port),
+            *args,
+        ],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    return process
+
+
+def _world_status(port: int) -> dict | None:
+    return admin_request("lab", f"tcp/127.0.0.1:{port}", "world", "status", None, 2.0)
+
+
+def _wait_ticking(port: int, timeout_s: float = 60.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        status = _world_status(port)
+        if status and status.get("tick", 0) > 50:
+            return status
+        time.sleep(0.5)
+    raise RuntimeError("the swarm did not start")
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def lockstep_speedup(window_s: float) -> float:
+    port = _port()
+    with tempfile.TemporaryDirectory() as out:
+        process = _start(Path(out), port, "--lockstep")
+        try:
+            first = _wait_ticking(port)
+            t0 = time.monotonic()
+            time.sleep(window_s)
+            second = _world_status(port)
+            wall = time.monotonic() - t0
+            assert second is not None
+            return (second["t_s"] - first["t_s"]) / wall
+        finally:
+            process.terminate()
+            process.wait(timeout=30)
+
+
+def realtime_run() -> tuple[dict, dict[str, float]]:
+    port = _port()
+    with tempfile.TemporaryDirectory() as out:
+        process = _start(Path(out), port, "--duration", "32")
+        _wait_ticking(port)
+        status = admin_request("lab", f"tcp/127.0.0.1:{port}", "launcher", "status", None, 2.0)
+        assert status is not None
+        pids = {n: p["pid"] for n, p in status["processes"].items() if p["pid"]}
+        before = {n: _cpu_seconds(pid) for n, pid in pids.items()}
+        t0 = time.monotonic()
+        time.sleep(10.0)
+        cpu = {
+            n: 100.0 * (_cpu_seconds(pid) - before[n]) / (time.monotonic() - t0)
+            for n, pid in pids.items()
+        }
+        process.wait(timeout=120)
+        summary = json.loads((Path(out) / "summary.json").read_text())
+    return summary["control_timing"], cpu
+
+
+def one_hop_latency_ms(samples: int) -> tuple[list[float], list[float]]:
+    """Radio hop through the world (ideal profile) and raw ping-pong through the router."""
+    port = _port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    keys = SwarmKeys("lab")
+    router = subprocess.Popen(
+        [sys.executable, "-m", "services.cli.main", "router", "--listen", endpoint],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    world = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "world",
+            "--scenario",
+            "configs/scenarios/paper.yaml",
+            "--connect",
+            endpoint,
+            "--radio",
+            "ideal",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        with open_client([endpoint]) as session:
+            got = threading.Event()
+            arrived: list[int] = []
+
+            def on_rx(sample) -> None:  # type: ignore[no-untyped-def]
+                arrived.append(time.perf_counter_ns())
+                got.set()
+
+            session.declare_subscriber(keys.radio_rx("robot2"), on_rx)
+            echo = session.declare_subscriber(
+                "bench/ping", lambda s: session.put("bench/pong", s.payload.to_bytes())
+            )
+            session.declare_subscriber("bench/pong", on_rx)
+            time.sleep(2.0)
+
+            def measure(key: str) -> list[float]:
+                out = []
+                for k in range(samples):
+                    got.clear()
+                    start = time.perf_counter_ns()
+                    session.put(key, k.to_bytes(8, "little") * 11)
+                    if got.wait(1.0):
+                        out.append((arrived[-1] - start) / 1e6)
+                    time.sleep(0.005)
+                return out
+
+            measure(keys.radio_tx("robot1"))  # warm up
+            radio = measure(keys.radio_tx("robot1"))
+            raw = measure("bench/ping")
+            echo.undeclare()
+            return radio, raw
+    finally:
+        for p in (world, router):
+            p.terminate()
+            p.wait(timeout=30)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--samples", type=int, default=500)
+    args = parser.parse_args()
+    print(f"# networked swarm runtime, {dt.date.today().isoformat()}")
+    print(
+        f"# machine: {platform.machine()}, {os.cpu_count()} cores, Python "
+        f"{platform.python_version()}; paper scenario, 3 robots; median of {args.runs} runs"
+    )
+    print()
+    speedups = [lockstep_speedup(10.0) for _ in range(args.runs)]
+    print(
+        f"lockstep speed-up over real time: {statistics.median(speedups):.2f}x "
+        f"(runs: {', '.join(f'{s:.2f}' for s in speedups)}; goal 10x)"
+    )
+    print()
+    timings, cpus = zip(*(realtime_run() for _ in range(args.runs)), strict=True)
+    print(f"{'robot':<8} {'ticks':>6} {'misses':>7} {'miss %':>7} {'jitter p99 ms':>14}")
+    for name in sorted(timings[0]):
+        rows = [t[name] for t in timings]
+        ticks = statistics.median(r["ticks"] for r in rows)
+        misses = statistics.median(r["deadline_misses"] for r in rows)
+        jitter = statistics.median(r["period_jitter_p99_ms"] for r in rows)
+        print(
+            f"{name:<8} {ticks:>6.0f} {misses:>7.0f} {100 * misses / ticks:>6.2f}% {jitter:>14.2f}"
+        )
+    print()
+    print(f"{'process':<8} {'CPU % of one core':>18}")
+    for name in cpus[0]:
+        print(f"{name:<8} {statistics.median(c[name] for c in cpus):>18.1f}")
+    print()
+    radio, raw = one_hop_latency_ms(args.samples)
+    print(f"{'path (ideal profile)':<42} {'p50 ms':>7} {'p99 ms':>7} {'n':>5}")
+    for label, values in (
+        ("robot1 -> world -> robot2 (radio hop)", radio),
+        ("raw zenoh ping-pong via the router", raw),
+    ):
+        print(
+            f"{label:<42} {np.percentile(values, 50):>7.3f} "
+            f"{np.percentile(values, 99):>7.3f} {len(values):>5}"
+        )
+
+
+if __name__ == "__main__":
+    main()

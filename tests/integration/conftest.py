@@ -1,0 +1,117 @@
+"""Real processes on loopback: a router, the world and one process per robot."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def swarm_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli.main", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def run_swarm(out: Path, *args: str, timeout: float = 600.0) -> dict:
+    """`swarm up` to the end of its --duration; returns the world's summary.json."""
+    port = free_port()
+    result = swarm_cli("up", "--out", str(out), "--port", str(port), *args, timeout=timeout)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return json.loads((out / "summary.json").read_text())
+
+
+@dataclass
+class LiveSwarm:
+    process: subprocess.Popen[str]
+    port: int
+    out: Path
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp/127.0.0.1:{self.port}"
+
+    def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
+        return swarm_cli(*args, "--connect", self.endpoint, timeout=30)
+
+    def admin(self, *args: str) -> dict:
+        result = self.cli(*args)
+        assert result.stdout, result.stderr
+        return json.loads(result.stdout)
+
+    def wait_for(self, predicate, timeout_s: float = 30.0, every_s: float = 0.5):  # type: ignore[no-untyped-def]
+        deadline = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < deadline:
+            last = predicate()
+            if last:
+                return last
+            time.sleep(every_s)
+        raise AssertionError(f"condition not met within {timeout_s} s; last value {last!r}")
+
+
+@pytest.fixture
+def live_swarm(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[LiveSwarm]:
+    """A swarm started with `swarm up` (no duration), stopped with Ctrl-C at the end."""
+    extra = getattr(request, "param", ())
+    port = free_port()
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "up",
+            "--out",
+            str(tmp_path),
+            "--port",
+            str(port),
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    assert process.stdout is not None
+    deadline = time.monotonic() + 60
+    lines = []
+    while time.monotonic() < deadline:
+        line = process.stdout.readline()
+        lines.append(line)
+        if line.startswith("swarm ") or not line:
+            break
+    assert any(line.startswith("swarm ") for line in lines), "".join(lines)
+    swarm = LiveSwarm(process, port, tmp_path)
+    try:
+        yield swarm
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+        process.stdout.close()
