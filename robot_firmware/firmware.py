@@ -116,6 +116,10 @@ class Firmware:
         self.last_state: ControllerState | None = None
         self.last_inputs: ControlInputs | None = None
 
+    def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
+        """Use another fuzzy scheduler from the next tick on (call between ticks)."""
+        self.rules = rule_base.expand_dims((0,))
+
     def boot(self, tick_fabric: Callable[[int], None], pll_timeout_ns: int = 1_000_000) -> None:
         """Identify the fabric, wait for the PLL, arm the motors and the watchdog."""
         self.drivers.system.identify()

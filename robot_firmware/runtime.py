@@ -34,9 +34,11 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+import yaml
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError, field_validator
 
+from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
@@ -84,11 +86,28 @@ class RobotConfig(BaseModel):
 
     @classmethod
     def from_sources(
-        cls, given: Mapping[str, Any], environ: Mapping[str, str] | None = None
+        cls,
+        given: Mapping[str, Any],
+        environ: Mapping[str, str] | None = None,
+        config_file: Path | None = None,
     ) -> RobotConfig:
-        """Command-line values win over environment variables (ROBOT_NAME or ROBOT_ID, ...)."""
+        """Settings from a YAML file, then environment variables (ROBOT_NAME or ROBOT_ID, ...),
+        then the command line, each overriding the one before.
+
+        A YAML file that cannot be read or parsed raises ValueError with the reason.
+        """
         env = os.environ if environ is None else environ
         values: dict[str, Any] = {}
+        if config_file is not None:
+            try:
+                loaded = yaml.safe_load(config_file.read_text(encoding="utf-8"))
+            except OSError as exc:
+                raise ValueError(f"{config_file}: cannot read ({exc.strerror})") from None
+            except yaml.YAMLError as exc:
+                raise ValueError(f"{config_file}: not valid YAML: {exc}") from None
+            if loaded is not None and not isinstance(loaded, dict):
+                raise ValueError(f"{config_file}: robot settings must be a YAML mapping")
+            values.update(loaded or {})
         for key, var in cls.ENV.items():
             raw = env.get(var)
             if key == "name" and raw is None:
@@ -148,6 +167,11 @@ class RobotProcess:
         self.config = config
         scenario = load_scenario(config.scenario)
         self.mission = scenario.mission(config.name, load_rule_base(scenario))
+        self.fuzzy_parameters: FuzzyParameters | None = (
+            FuzzyParameters.load(scenario.fuzzy_parameter_file)
+            if scenario.fuzzy_parameter_file is not None
+            else FuzzyParameters.table2_defaults()
+        )
         self.keys = SwarmKeys(config.swarm)
         sonar_count = self.mission.sonar_count
         self.fabric = Fabric(FabricConfig(n_sonar=sonar_count))
@@ -366,6 +390,33 @@ class RobotProcess:
             )
         return out
 
+    def _params_request(self, payload: bytes) -> dict[str, Any]:
+        """Get the fuzzy scheduler's parameters, or replace them with a new parameter file.
+
+        The file (YAML or JSON text) is validated first; a bad one is refused with the reason
+        and the running parameters stay.  Queries are served between control ticks, so a new
+        scheduler takes effect at the next tick.
+        """
+        if not payload:
+            current = self.fuzzy_parameters
+            return {"ok": True, "parameters": None if current is None else current.model_dump()}
+        try:
+            data = yaml.safe_load(payload.decode("utf-8"))
+            parameters = FuzzyParameters.model_validate(data)
+        except (UnicodeDecodeError, yaml.YAMLError, ValidationError) as exc:
+            return {"ok": False, "error": f"fuzzy parameters refused: {exc}"}
+        self.firmware.set_rule_base(parameters.rule_base())
+        self.fuzzy_parameters = parameters
+        log.info(
+            "fuzzy parameters replaced: %d x %d sets",
+            len(parameters.error_centres),
+            len(parameters.rate_centres),
+        )
+        return {
+            "ok": True,
+            "rule_count": len(parameters.error_centres) * len(parameters.rate_centres),
+        }
+
     def _serve_queries(self) -> None:
         while True:
             try:
@@ -376,8 +427,13 @@ class RobotProcess:
             payload = query.payload.to_bytes() if query.payload is not None else b""
             if verb == "regs":
                 reply = handle_regs_request(self.fabric.bus, payload)
+            elif verb == "params":
+                reply = self._params_request(payload)
             elif verb == "status":
                 reply = {"ok": True, **self.telemetry(self._sim_time_ns(time.monotonic_ns()))}
             else:
-                reply = {"ok": False, "error": f"unknown admin verb {verb!r}; use regs or status"}
+                reply = {
+                    "ok": False,
+                    "error": f"unknown admin verb {verb!r}; use regs, params or status",
+                }
             query.reply(query.key_expr, json.dumps(reply).encode())

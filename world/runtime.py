@@ -42,6 +42,7 @@ from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
 from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, encode_clock, encode_sense
 from world.engine import NS_PER_S, WorldEngine
+from world.metrics import reference_points, sample_errors
 from world.radio import PROFILES, LinkProfile
 from world.scenario import Scenario, load_rule_base
 from world.summary import build_summary, write_json_atomically
@@ -362,6 +363,19 @@ class WorldProcess:
         }
         truth_pub.put(json.dumps(truth).encode())
 
+    def current_position_errors(self) -> dict[str, float]:
+        """Each robot's distance from its reference now (trajectory or slot, DESIGN.md §8)."""
+        engine = self.engine
+        reference, _ = engine.trajectory.evaluate(engine.t_s)
+        errors = sample_errors(
+            engine.bodies.pose,
+            reference_points(engine.bodies.pose, reference, self.scenario.layout()),
+        )
+        return {
+            name: round(float(np.hypot(errors[i, 0], errors[i, 1])), 6)
+            for i, name in enumerate(self.names)
+        }
+
     def radio_stats(self, percentiles: bool = True) -> dict[str, Any]:
         radio = self.engine.radio
         p50 = radio.latency_percentile_ms(50) if percentiles else None
@@ -421,6 +435,7 @@ class WorldProcess:
                     "robots": list(self.names),
                     "radio": self.radio_stats(),
                     "metrics": self.engine.summary(),
+                    "position_errors_m": self.current_position_errors(),
                 }
             else:
                 reply = {"ok": False, "error": f"unknown admin verb {verb!r}; use status or net"}

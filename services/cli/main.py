@@ -117,9 +117,13 @@ def _cmd_robot(args: argparse.Namespace) -> int:
         "connect": split_endpoints(args.connect) if args.connect else None,
     }
     try:
-        config = RobotConfig.from_sources(given)
+        config = RobotConfig.from_sources(
+            given, config_file=Path(args.config) if args.config else None
+        )
     except ValidationError as exc:
         raise UsageError(describe_config_error(exc)) from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     robot = RobotProcess(config)
     _install_stop(robot.stop)
     return robot.run()
@@ -170,7 +174,15 @@ def _cmd_up(args: argparse.Namespace) -> int:
     return code
 
 
-def _admin(args: argparse.Namespace, target: str, verb: str, body: dict[str, object] | None):  # type: ignore[no-untyped-def]
+def _admin(
+    args: argparse.Namespace, target: str, verb: str, body: dict[str, object] | None
+) -> dict[str, object]:
+    return _admin_raw(args, target, verb, None if body is None else json.dumps(body).encode())
+
+
+def _admin_raw(
+    args: argparse.Namespace, target: str, verb: str, body: bytes | None
+) -> dict[str, object]:
     from services.launcher.launcher import admin_request
 
     endpoint = _endpoints(args.connect)[0]
@@ -244,6 +256,16 @@ def _cmd_regs(args: argparse.Namespace) -> int:
     else:
         print(f"0x{reply['address']:08X}  {reply.get('name')}  0x{reply['value']:08X}")
     return 0
+
+
+def _cmd_params(args: argparse.Namespace) -> int:
+    body: bytes | None = None
+    if args.file is not None:
+        try:
+            body = Path(args.file).read_bytes()
+        except OSError as exc:
+            raise UsageError(f"cannot read {args.file} ({exc.strerror})") from None
+    return _print_reply(_admin_raw(args, args.robot, "params", body))
 
 
 def _int_literal(text: str) -> int:
@@ -400,6 +422,22 @@ def build_parser() -> argparse.ArgumentParser:
     regs.add_argument("--timeout", type=float, default=3.0)
     regs.set_defaults(handler=_cmd_regs)
 
+    params = sub.add_parser(
+        "params",
+        help="show or replace a live robot's fuzzy scheduler parameters",
+        description=(
+            "Without FILE, print the robot's fuzzy parameters. With FILE (a fuzzy parameter "
+            "file, e.g. the best_fuzzy.yaml of `swarm tune`), send it to the robot: it is "
+            "validated and applied between control ticks; a bad file is refused with the "
+            "reason and the old parameters stay."
+        ),
+    )
+    params.add_argument("robot")
+    params.add_argument("file", nargs="?", metavar="FILE")
+    swarm_options(params)
+    params.add_argument("--timeout", type=float, default=3.0)
+    params.set_defaults(handler=_cmd_params)
+
     world = sub.add_parser(
         "world",
         help="run the world process (physics, sensors, radio medium)",
@@ -423,6 +461,12 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     robot.add_argument("--name", help="robot name, e.g. robot1")
+    robot.add_argument(
+        "--config",
+        metavar="FILE",
+        help="YAML file with robot settings (name, swarm, scenario, connect, "
+        "telemetry_rate_hz, ...); environment and flags override it",
+    )
     robot.add_argument("--scenario", metavar="FILE")
     swarm_options(robot)
     robot.set_defaults(handler=_cmd_robot)

@@ -8,6 +8,8 @@ order (robots, world, router), leaving `<out>/summary.json` from the world.
 While it runs, the launcher answers admin queries on `swarm/<swarm>/admin/launcher/<verb>`:
 `status` (processes and PIDs), `kill` (SIGKILL a robot: a power cut) and `restart` (start a
 robot again, killing it first if it still runs).  `swarm status|kill|restart` send them.
+A router that dies is started again at once; every other process is a client that waits for
+it and reconnects.  A robot that dies stays down (a power cut) until it is restarted.
 The process factory is injectable so tests can substitute their own.
 """
 
@@ -209,9 +211,9 @@ class Launcher:
                         code = world.process.returncode
                         break
                     if not self.children["router"].running:
-                        log.error("the router exited; stopping")
-                        code = 1
-                        break
+                        # Clients wait for the router and reconnect: bring it back.
+                        log.warning("the router exited; restarting it")
+                        self.restart("router")
                     time.sleep(0.05)
             finally:
                 token.undeclare()
@@ -239,14 +241,16 @@ def admin_request(
     endpoint: str,
     target: str,
     verb: str,
-    body: dict[str, Any] | None = None,
+    body: dict[str, Any] | bytes | None = None,
     timeout_s: float = 3.0,
 ) -> dict[str, Any] | None:
-    """Ask a running swarm's process one admin question; None when nobody answers."""
+    """Ask a running swarm's process one admin question; None when nobody answers.
+
+    body: a JSON-able dict, raw bytes, or None for a bare query.
+    """
     keys = SwarmKeys(swarm)
-    config_endpoint = [endpoint]
-    with open_client(config_endpoint) as session:
-        payload = json.dumps(body).encode() if body is not None else None
+    with open_client([endpoint]) as session:
+        payload = json.dumps(body).encode() if isinstance(body, dict) else body
         replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
         for reply in replies:
             if reply.ok is not None:
