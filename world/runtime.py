@@ -95,6 +95,7 @@ class WorldProcess:
         self.malformed_acts = 0
         self.unknown_senders = 0
         self.frames_owed = np.zeros(len(self.names), dtype=np.int64)
+        self.first_tick_owed = np.zeros(len(self.names), dtype=np.int64)
         self._catch_up: Callable[[int], None] | None = None
         self._held_frames: list[tuple[int, bytes]] = []
         self.timing: dict[str, dict[str, Any]] = {}
@@ -139,8 +140,14 @@ class WorldProcess:
                 name, alive = self._liveliness.get_nowait()
             except queue.Empty:
                 break
-            if name in self.index:
+            i = self.index.get(name)
+            if i is not None:
                 (self.live.add if alive else self.live.discard)(name)
+                # A robot that (re)joins starts with a clean slate and is waited for from the
+                # next tick on: the sense message of the current tick may have gone out before
+                # it was listening.
+                self.frames_owed[i] = 0
+                self.first_tick_owed[i] = self.tick + 1
                 log.info("robot %s %s", name, "joined" if alive else "left")
         while True:
             try:
@@ -172,6 +179,11 @@ class WorldProcess:
         if not self.config.lockstep:
             self._transmit_held()
         self._serve_queries()
+
+    def _owes_tick(self, i: int) -> bool:
+        if self.first_tick_owed[i] > self.tick:
+            return False
+        return bool(self.act_tick[i] < self.tick or self.frames_owed[i] > 0)
 
     def _transmit_held(self) -> None:
         for j, payload in sorted(self._held_frames, key=lambda item: item[0]):
@@ -259,6 +271,8 @@ class WorldProcess:
                 break
             self._wake.wait(0.05)
             self._wake.clear()
+        # Robots that joined before time started are listening: they owe tick 0 already.
+        self.first_tick_owed[:] = 0
         next_summary = time.monotonic() + self.config.summary_every_s
         while not self.stop.is_set() and (end is None or self.tick < end):
             self._drain()
@@ -266,19 +280,14 @@ class WorldProcess:
             clock_pub.put(
                 encode_clock(ClockMessage(self.tick, self.engine.t_ns, self.period_ns, True))
             )
-            waiting = set(self.live)
+            waiting = {n for n in self.live if self._owes_tick(self.index[n])}
             while waiting and not self.stop.is_set():
                 self._wake.wait(0.05)
                 self._wake.clear()
                 self._drain()
                 # A robot is done with this tick when its act has come, and the frames it
                 # announced in it too.
-                waiting = {
-                    n
-                    for n in self.live
-                    if self.act_tick[self.index[n]] < self.tick
-                    or self.frames_owed[self.index[n]] > 0
-                }
+                waiting = {n for n in self.live if self._owes_tick(self.index[n])}
             self._drain()
             self._transmit_held()
             dead = np.array([name not in self.live for name in self.names])
