@@ -278,6 +278,12 @@ class RobotProcess:
         return 0
 
     def _take_sense(self) -> SenseMessage | None:
+        """Apply every queued sense message to the pins in order; return the newest.
+
+        In lockstep the world waits for each tick, so only one is ever queued, except just
+        after the robot (re)joins, when it may find a tick it was not waited for ahead of the
+        one it is: it then answers the newest only.
+        """
         newest: SenseMessage | None = None
         while self._sense:
             raw, arrival = self._sense.popleft()
@@ -293,8 +299,6 @@ class RobotProcess:
             self._last_sense_mono_ns = arrival
             self._lockstep = message.lockstep
             newest = message
-            if self._lockstep and message.tick > self._last_tick_served:
-                break  # serve lockstep ticks one by one
         return newest
 
     def _apply_pins(self, message: SenseMessage) -> None:

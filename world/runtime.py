@@ -445,6 +445,15 @@ class WorldProcess:
                     "radio": self.radio_stats(),
                     "metrics": self.engine.summary(),
                     "position_errors_m": self.current_position_errors(),
+                    "lockstep_owed": {
+                        name: {
+                            "live": name in self.live,
+                            "last_act_tick": int(self.act_tick[i]),
+                            "frames_owed": int(self.frames_owed[i]),
+                            "owes_from_tick": int(self.first_tick_owed[i]),
+                        }
+                        for i, name in enumerate(self.names)
+                    },
                 }
             else:
                 reply = {"ok": False, "error": f"unknown admin verb {verb!r}; use status or net"}
