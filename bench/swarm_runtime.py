@@ -50,6 +50,7 @@ def _start(out: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
             "-m",
             "services.cli.main",
             "up",
+            "--no-dashboard",
             "--out",
             str(out),
             "--port",

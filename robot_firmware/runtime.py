@@ -24,7 +24,6 @@ import gc
 import json
 import logging
 import os
-import queue
 import threading
 import time
 from collections import deque
@@ -42,11 +41,12 @@ from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
-from robot_firmware.fpga.positioning import PositionFix
+from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.frames import SWARM_KEY_ENV_VAR, key_from_secret, swarm_hash_from_name
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from robot_firmware.net.wire import ActMessage, SenseMessage, decode_sense, encode_act
+from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
 
 log = logging.getLogger("swarm.robot")
@@ -186,7 +186,7 @@ class RobotProcess:
         self.timing = LoopTiming(self.period_ns)
         self._sense: deque[tuple[bytes, int]] = deque(maxlen=64)
         self._frames: deque[bytes] = deque(maxlen=1024)
-        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._admin = AdminQueue()
         self._wake = threading.Event()
         self.malformed_sense = 0
         self.stop = threading.Event()
@@ -212,9 +212,6 @@ class RobotProcess:
         self._frames.append(sample.payload.to_bytes())
         self._wake.set()
 
-    def _on_query(self, query: zenoh.Query) -> None:
-        self._queries.put(query)
-
     # -- main loop ------------------------------------------------------------------------
 
     def run(self) -> int:
@@ -223,7 +220,7 @@ class RobotProcess:
             name = cfg.name
             session.declare_subscriber(self.keys.sense(name), self._on_sense)
             session.declare_subscriber(self.keys.radio_rx(name), self._on_frame)
-            session.declare_queryable(self.keys.admin(name, "*"), self._on_query)
+            session.declare_queryable(self.keys.admin(name, "*"), self._admin.on_query)
             act_pub = session.declare_publisher(self.keys.act(name))
             tx_pub = session.declare_publisher(self.keys.radio_tx(name))
             telemetry_pub = session.declare_publisher(self.keys.telemetry(name))
@@ -294,22 +291,12 @@ class RobotProcess:
             if len(message.sonar_echo_times_s) != self.mission.sonar_count:
                 self.malformed_sense += 1
                 continue
-            self._apply_pins(message)
+            apply_sense(self.fabric, message)
             self._last_sense = message
             self._last_sense_mono_ns = arrival
             self._lockstep = message.lockstep
             newest = message
         return newest
-
-    def _apply_pins(self, message: SenseMessage) -> None:
-        fix = message.fix
-        self.fabric.hw_apply_sense(
-            message.encoder_counts,
-            message.sonar_echo_times_s,
-            None
-            if fix is None
-            else PositionFix(fix.x_m, fix.y_m, fix.heading_rad, fix.stamp_ns, fix.valid),
-        )
 
     def _sim_time_ns(self, mono_now_ns: int) -> int:
         if self._last_sense is None:
@@ -422,22 +409,13 @@ class RobotProcess:
         }
 
     def _serve_queries(self) -> None:
-        while True:
-            try:
-                query = self._queries.get_nowait()
-            except queue.Empty:
-                return
-            verb = SwarmKeys.last_chunk(str(query.key_expr))
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            if verb == "regs":
-                reply = handle_regs_request(self.fabric.bus, payload)
-            elif verb == "params":
-                reply = self._params_request(payload)
-            elif verb == "status":
-                reply = {"ok": True, **self.telemetry(self._sim_time_ns(time.monotonic_ns()))}
-            else:
-                reply = {
-                    "ok": False,
-                    "error": f"unknown admin verb {verb!r}; use regs, params or status",
-                }
-            query.reply(query.key_expr, json.dumps(reply).encode())
+        self._admin.serve(
+            {
+                "regs": lambda body: handle_regs_request(self.fabric.bus, body),
+                "params": self._params_request,
+                "status": lambda _body: {
+                    "ok": True,
+                    **self.telemetry(self._sim_time_ns(time.monotonic_ns())),
+                },
+            }
+        )

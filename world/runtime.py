@@ -38,6 +38,7 @@ import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
 
+from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
 from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, encode_clock, encode_sense
@@ -89,7 +90,7 @@ class WorldProcess:
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
-        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._admin = AdminQueue()
         self._wake = threading.Event()
         self.stop = threading.Event()
         self.malformed_acts = 0
@@ -128,9 +129,6 @@ class WorldProcess:
                 self.timing[str(data.get("robot"))] = data["timing"]
         except (ValueError, UnicodeDecodeError):
             pass
-
-    def _on_query(self, query: zenoh.Query) -> None:
-        self._queries.put(query)
 
     # -- queues, drained by the main loop ------------------------------------------------
 
@@ -231,7 +229,7 @@ class WorldProcess:
             session.liveliness().declare_subscriber(
                 keys.alive_all("robot"), self._on_alive, history=True
             )
-            session.declare_queryable(keys.admin("world", "*"), self._on_query)
+            session.declare_queryable(keys.admin("world", "*"), self._admin.on_query)
             self._publishers = {n: session.declare_publisher(keys.sense(n)) for n in self.names}
             clock_pub = session.declare_publisher(keys.clock)
             truth_pub = session.declare_publisher(keys.truth)
@@ -424,40 +422,29 @@ class WorldProcess:
             write_json_atomically(path, self.summary(), durable=final)
 
     def _serve_queries(self) -> None:
-        while True:
-            try:
-                query = self._queries.get_nowait()
-            except queue.Empty:
-                return
-            verb = SwarmKeys.last_chunk(str(query.key_expr))
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            reply: dict[str, Any]
-            if verb == "net":
-                reply = self._net_request(payload)
-            elif verb == "status":
-                reply = {
-                    "ok": True,
-                    "t_s": self.engine.t_s,
-                    "tick": self.tick,
-                    "clock_mode": "lockstep" if self.config.lockstep else "real_time",
-                    "live": sorted(self.live),
-                    "robots": list(self.names),
-                    "radio": self.radio_stats(),
-                    "metrics": self.engine.summary(),
-                    "position_errors_m": self.current_position_errors(),
-                    "lockstep_owed": {
-                        name: {
-                            "live": name in self.live,
-                            "last_act_tick": int(self.act_tick[i]),
-                            "frames_owed": int(self.frames_owed[i]),
-                            "owes_from_tick": int(self.first_tick_owed[i]),
-                        }
-                        for i, name in enumerate(self.names)
-                    },
+        self._admin.serve({"net": self._net_request, "status": lambda _body: self._status()})
+
+    def _status(self) -> dict[str, Any]:
+        return {
+            "ok": True,
+            "t_s": self.engine.t_s,
+            "tick": self.tick,
+            "clock_mode": "lockstep" if self.config.lockstep else "real_time",
+            "live": sorted(self.live),
+            "robots": list(self.names),
+            "radio": self.radio_stats(),
+            "metrics": self.engine.summary(),
+            "position_errors_m": self.current_position_errors(),
+            "lockstep_owed": {
+                name: {
+                    "live": name in self.live,
+                    "last_act_tick": int(self.act_tick[i]),
+                    "frames_owed": int(self.frames_owed[i]),
+                    "owes_from_tick": int(self.first_tick_owed[i]),
                 }
-            else:
-                reply = {"ok": False, "error": f"unknown admin verb {verb!r}; use status or net"}
-            query.reply(query.key_expr, json.dumps(reply).encode())
+                for i, name in enumerate(self.names)
+            },
+        }
 
     def _net_request(self, payload: bytes) -> dict[str, Any]:
         if not payload:

@@ -145,6 +145,9 @@ def _cmd_up(args: argparse.Namespace) -> int:
         lockstep=args.lockstep,
         duration_s=args.duration,
         radio_profile=args.radio,
+        dashboard=not args.no_dashboard,
+        web_port=args.web_port,
+        grpc_port=args.grpc_port,
     )
     launcher = Launcher(plan)
     _install_stop(launcher.stop)
@@ -365,6 +368,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="the world waits for every live robot each tick (deterministic)",
     )
     up.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
+    up.add_argument(
+        "--web-port", type=int, default=9090, help="dashboard web viewer port (default: 9090)"
+    )
+    up.add_argument(
+        "--grpc-port", type=int, default=9876, help="dashboard gRPC data port (default: 9876)"
+    )
     up.add_argument(
         "--out",
         default="runs/swarm",

@@ -3,11 +3,13 @@
 `Launcher.up` starts the router, the world and every robot of the scenario as child processes
 (`python -m services.cli.main ...`), each logging to `<out>/logs/<name>.log`, and supervises
 them until the world ends (its `--duration`), Ctrl-C or SIGTERM, then stops everything in
-order (robots, world, router), leaving `<out>/summary.json` from the world.
+order (dashboard, robots, world, router), leaving `<out>/summary.json` from the world.
 
-While it runs, the launcher answers admin queries on `swarm/<swarm>/admin/launcher/<verb>`:
-`status` (processes and PIDs), `kill` (SIGKILL a robot: a power cut) and `restart` (start a
-robot again, killing it first if it still runs).  `swarm status|kill|restart` send them.
+The dashboard (`swarm dashboard`, the live Rerun viewer and `<out>/dashboard.rrd`) starts with
+them unless `dashboard=False`.  While it runs, the launcher answers admin queries on
+`swarm/<swarm>/admin/launcher/<verb>`: `status` (processes and PIDs), `kill` (SIGKILL a
+robot: a power cut) and `restart` (start a robot again, killing it first if it still runs);
+`swarm status|kill|restart` send them.
 A router that dies is started again at once; every other process is a client that waits for
 it and reconnects.  A robot that dies stays down (a power cut) until it is restarted.
 The process factory is injectable so tests can substitute their own.
@@ -18,7 +20,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import queue
 import signal
 import subprocess
 import sys
@@ -28,9 +29,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
+from urllib.parse import quote
 
-import zenoh
-
+from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
 
@@ -75,7 +76,16 @@ class LaunchPlan:
     lockstep: bool = False
     duration_s: float | None = None
     radio_profile: str | None = None
+    dashboard: bool = True
+    web_port: int = 9090
+    grpc_port: int = 9876
     extra_env: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def viewer_url(self) -> str:
+        """The Rerun web viewer's address with its data source filled in."""
+        source = quote(f"rerun+http://127.0.0.1:{self.grpc_port}/proxy", safe="")
+        return f"http://127.0.0.1:{self.web_port}/?url={source}"
 
 
 class Launcher:
@@ -85,7 +95,7 @@ class Launcher:
         self.keys = SwarmKeys(plan.swarm)
         self.children: dict[str, Child] = {}
         self.stop = threading.Event()
-        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._admin = AdminQueue()
         logs = plan.out_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         cli = [sys.executable, "-m", "services.cli.main"]
@@ -112,6 +122,21 @@ class Launcher:
         for name in plan.robots:
             argv = [*cli, "robot", "--name", name, "--scenario", str(plan.scenario), *connect]
             self.children[name] = Child(name, argv, logs / f"{name}.log")
+        if plan.dashboard:
+            dashboard = [
+                *cli,
+                "dashboard",
+                "--scenario",
+                str(plan.scenario),
+                *connect,
+                "--out",
+                str(plan.out_dir),
+                "--web-port",
+                str(plan.web_port),
+                "--grpc-port",
+                str(plan.grpc_port),
+            ]
+            self.children["dashboard"] = Child("dashboard", dashboard, logs / "dashboard.log")
 
     def _env(self) -> dict[str, str]:
         env = dict(os.environ)
@@ -157,49 +182,40 @@ class Launcher:
             for name, child in self.children.items()
         }
 
-    def _on_query(self, query: zenoh.Query) -> None:
-        self._queries.put(query)
+    def _robot_request(self, verb: str, body: bytes) -> dict[str, Any]:
+        try:
+            request = json.loads(body) if body else {}
+        except ValueError:
+            request = None
+        name = request.get("robot") if isinstance(request, dict) else None
+        if not isinstance(name, str) or name not in self.plan.robots:
+            return {"ok": False, "error": f"no robot {name!r}; robots: {list(self.plan.robots)}"}
+        if verb == "kill":
+            return {"ok": True, "killed": self.kill(name)}
+        self.restart(name)
+        process = self.children[name].process
+        return {"ok": True, "restarted": name, "pid": process.pid if process else None}
 
     def _serve(self) -> None:
-        while True:
-            try:
-                query = self._queries.get_nowait()
-            except queue.Empty:
-                return
-            verb = SwarmKeys.last_chunk(str(query.key_expr))
-            try:
-                body = json.loads(query.payload.to_bytes()) if query.payload is not None else {}
-            except ValueError:
-                body = None
-            reply: dict[str, Any]
-            if verb == "status":
-                reply = {"ok": True, "processes": self.status()}
-            elif verb in ("kill", "restart"):
-                name = body.get("robot") if isinstance(body, dict) else None
-                if not isinstance(name, str) or name not in self.plan.robots:
-                    reply = {
-                        "ok": False,
-                        "error": f"no robot {name!r}; robots: {list(self.plan.robots)}",
-                    }
-                elif verb == "kill":
-                    reply = {"ok": True, "killed": self.kill(name)}
-                else:
-                    self.restart(name)
-                    process = self.children[name].process
-                    reply = {"ok": True, "restarted": name, "pid": process.pid if process else None}
-            else:
-                reply = {"ok": False, "error": f"unknown verb {verb!r}; use status, kill, restart"}
-            query.reply(query.key_expr, json.dumps(reply).encode())
+        self._admin.serve(
+            {
+                "status": lambda _body: {"ok": True, "processes": self.status()},
+                "kill": lambda body: self._robot_request("kill", body),
+                "restart": lambda body: self._robot_request("restart", body),
+            }
+        )
 
     def up(self, on_ready: Callable[[], None] | None = None) -> int:
         """Start everything and supervise until the world ends or a stop is asked."""
         self.start("router")
         with open_client([self.plan.endpoint]) as session:
-            session.declare_queryable(self.keys.admin("launcher", "*"), self._on_query)
+            session.declare_queryable(self.keys.admin("launcher", "*"), self._admin.on_query)
             token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
             self.start("world")
             for name in self.plan.robots:
                 self.start(name)
+            if "dashboard" in self.children:
+                self.start("dashboard")
             if on_ready is not None:
                 on_ready()
             code = 0
@@ -221,7 +237,9 @@ class Launcher:
         return code
 
     def shutdown(self, grace_s: float = 5.0) -> None:
-        order = [n for n in self.plan.robots] + ["world", "router"]
+        order = [
+            n for n in ("dashboard", *self.plan.robots, "world", "router") if n in self.children
+        ]
         for name in order:
             child = self.children[name]
             if child.running and child.process is not None:

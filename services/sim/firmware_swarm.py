@@ -19,7 +19,7 @@ import numpy as np
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
-from robot_firmware.fpga.positioning import PositionFix
+from robot_firmware.pins import apply_sense
 from world.engine import NS_PER_S, WorldEngine
 from world.scenario import Scenario, load_rule_base
 
@@ -63,14 +63,7 @@ class FirmwareSwarm:
         world = self.world
         now_ns = world.t_ns
         for robot, sense in zip(self.robots, world.sense(), strict=True):
-            fix = sense.fix
-            robot.fabric.hw_apply_sense(
-                sense.encoder_counts,
-                sense.sonar_echo_times_s,
-                None
-                if fix is None
-                else PositionFix(fix.x_m, fix.y_m, fix.heading_rad, fix.stamp_ns, fix.valid),
-            )
+            apply_sense(robot.fabric, sense)
         for receiver, _sender, payload in world.due_frames():
             self.robots[receiver].firmware.receive(payload, now_ns)
         reports = []

@@ -38,7 +38,9 @@ def swarm_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[
 def run_swarm(out: Path, *args: str, timeout: float = 600.0) -> dict:
     """`swarm up` to the end of its --duration; returns the world's summary.json."""
     port = free_port()
-    result = swarm_cli("up", "--out", str(out), "--port", str(port), *args, timeout=timeout)
+    result = swarm_cli(
+        "up", "--out", str(out), "--port", str(port), "--no-dashboard", *args, timeout=timeout
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     return json.loads((out / "summary.json").read_text())
 
@@ -86,6 +88,7 @@ def live_swarm(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[LiveS
             "-m",
             "services.cli.main",
             "up",
+            "--no-dashboard",
             "--out",
             str(tmp_path),
             "--port",
