@@ -493,6 +493,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     router.add_argument("--config", metavar="FILE", help="json5 router config")
     router.set_defaults(handler=_cmd_router)
+
+    from services.dashboard.cli import add_dashboard_parsers
+
+    add_dashboard_parsers(sub)
     return parser
 
 

@@ -1,0 +1,7 @@
+"""The live dashboard: a running swarm streamed into Rerun (web viewer and .rrd recording).
+
+`cli` holds the `swarm dashboard` and `swarm replay` subcommands, `live` the Zenoh-to-Rerun
+service, `scene` the pure mapping from truth and telemetry to Rerun records, `blueprint` the
+default layout, `entities` every entity path, `messages` the payloads read, `replay` the
+serving of a recorded file.
+"""

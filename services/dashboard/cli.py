@@ -1,0 +1,204 @@
+"""Command-line entry points of the dashboard: `swarm dashboard` and `swarm replay`.
+
+`add_dashboard_parsers(subparsers)` registers both subcommands on any argparse parser; each sets
+`handler` to `run_dashboard` or `run_replay`, which take the parsed arguments and return the exit
+status (2 for a user mistake, reported in one line without a traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from world.scenario import ScenarioError, load_scenario
+
+EXIT_USAGE = 2
+DEFAULT_SCENARIO = "configs/scenarios/paper.yaml"
+DEFAULT_WEB_PORT = 9090
+DEFAULT_GRPC_PORT = 9876
+
+
+@contextmanager
+def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """SIGTERM and SIGINT set `stop` while inside; the previous handlers come back after."""
+    signals = (signal.SIGTERM, signal.SIGINT)
+    previous = {sig: signal.getsignal(sig) for sig in signals}
+    for sig in signals:
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _usage_error(command: str, message: str) -> int:
+    print(f"swarm {command}: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def run_dashboard(args: argparse.Namespace) -> int:
+    """`swarm dashboard`: stream a running swarm to the web viewer and DIR/dashboard.rrd."""
+    # Rerun loads only when a dashboard runs, not for every `swarm` command.
+    from services.dashboard.live import DashboardConfig, DashboardService
+
+    scenario_path = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
+    try:
+        scenario = load_scenario(scenario_path)
+        config = DashboardConfig(
+            scenario=scenario_path,
+            swarm=args.swarm or os.environ.get("SWARM_NAME", "lab"),
+            connect=split_endpoints(
+                args.connect or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT)
+            ),
+            host=args.host,
+            web_port=args.web_port,
+            grpc_port=args.grpc_port,
+            out_dir=Path(args.out) if args.out else None,
+            server_memory_limit=args.memory_limit,
+        )
+        service = DashboardService(config, scenario)
+    except ScenarioError as exc:
+        return _usage_error("dashboard", str(exc))
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in item['loc'])}: {item['msg']}"
+            for item in exc.errors(include_url=False)
+        )
+        return _usage_error("dashboard", f"invalid settings: {problems}")
+    except ValueError as exc:
+        return _usage_error("dashboard", f"invalid settings: {exc}")
+
+    def ready() -> None:
+        print(
+            f"dashboard for swarm {config.swarm} ({scenario.name}) at {', '.join(config.connect)}"
+        )
+        print(f"open {service.url}")
+        if service.recording_path is not None:
+            print(f"recording to {service.recording_path}")
+        if service.kept_recording is not None:
+            print(f"previous recording kept as {service.kept_recording}")
+        sys.stdout.flush()
+
+    try:
+        with _stop_on_signals(service.stop):
+            return service.run(on_ready=ready)
+    except (OSError, RuntimeError) as exc:
+        return _usage_error(
+            "dashboard", f"cannot serve the viewer: {getattr(exc, 'strerror', None) or exc}"
+        )
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    """`swarm replay FILE.rrd`: serve a recorded run to the web viewer."""
+    from services.dashboard.live import check_port_free, viewer_url
+    from services.dashboard.replay import replay_command, serve_recording, server_memory_limit_for
+
+    recording = Path(args.recording)
+    if not recording.is_file():
+        return _usage_error("replay", f"{recording}: no such recording")
+    try:
+        check_port_free(args.grpc_port)
+        check_port_free(args.web_port)
+    except OSError as exc:
+        return _usage_error("replay", f"cannot serve the viewer: {exc.strerror or exc}")
+    limit = args.memory_limit or server_memory_limit_for(recording)
+    command = replay_command(recording, args.web_port, args.grpc_port, limit)
+    stop = threading.Event()
+    print(f"replaying {recording}")
+    print(f"open {viewer_url(args.host, args.web_port, args.grpc_port)}", flush=True)
+    with _stop_on_signals(stop):
+        return serve_recording(command, stop)
+
+
+def _viewer_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--web-port",
+        type=int,
+        default=DEFAULT_WEB_PORT,
+        help=f"HTTP port of the web viewer (default: {DEFAULT_WEB_PORT})",
+    )
+    parser.add_argument(
+        "--grpc-port",
+        type=int,
+        default=DEFAULT_GRPC_PORT,
+        help=f"port of the gRPC server the viewer reads from (default: {DEFAULT_GRPC_PORT})",
+    )
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="this machine's name or address as the browser reaches it, used in the printed "
+        "URL (default: 127.0.0.1); both ports must be reachable from the browser",
+    )
+
+
+def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register `dashboard` (handler `run_dashboard`) and `replay` (handler `run_replay`)."""
+    dashboard = subparsers.add_parser(
+        "dashboard",
+        help="live Rerun dashboard of a running swarm (web viewer + .rrd recording)",
+        description=(
+            "Subscribe to a running swarm (truth, telemetry, liveliness; it never publishes) and "
+            "stream it to the Rerun web viewer and to DIR/dashboard.rrd at once: the map with "
+            "true poses, trails, desired formation points, reference path and obstacles; the "
+            "leader's tracking error (Fig. 12), the formation errors (Fig. 13), the fuzzy-"
+            "scheduled PID gains and the radio's delivery ratio and latency, on the simulated "
+            "time line. Prints the URL to open. Stops on Ctrl-C or SIGTERM. A previous "
+            "DIR/dashboard.rrd is kept as DIR/dashboard-<n>.rrd."
+        ),
+    )
+    dashboard.add_argument(
+        "--scenario",
+        metavar="FILE",
+        help=f"the swarm's scenario YAML (default: $SWARM_SCENARIO or {DEFAULT_SCENARIO})",
+    )
+    dashboard.add_argument(
+        "--swarm", help="swarm name, the first chunk of every key (default: $SWARM_NAME or lab)"
+    )
+    dashboard.add_argument(
+        "--connect",
+        metavar="ENDPOINTS",
+        help=f"router endpoint(s), comma separated (default: $ZENOH_CONNECT or {DEFAULT_ENDPOINT})",
+    )
+    dashboard.add_argument(
+        "--out",
+        metavar="DIR",
+        help="write DIR/dashboard.rrd (default: no file, live only)",
+    )
+    dashboard.add_argument(
+        "--memory-limit",
+        default="256MiB",
+        metavar="SIZE",
+        help="data the gRPC server keeps for viewers that connect late, oldest dropped first "
+        "(default: 256MiB)",
+    )
+    _viewer_options(dashboard)
+    dashboard.set_defaults(handler=run_dashboard)
+
+    replay = subparsers.add_parser(
+        "replay",
+        help="open a recorded run (.rrd) in the Rerun web viewer",
+        description=(
+            "Serve a recording (e.g. DIR/dashboard.rrd of `swarm dashboard`, also one cut off "
+            "by a kill) to the Rerun web viewer and print the URL to open; stops on Ctrl-C. "
+            "Equivalent: `rerun --serve-web FILE.rrd --port GRPC --web-viewer-port WEB`, or "
+            "`rerun FILE.rrd` for the native viewer."
+        ),
+    )
+    replay.add_argument("recording", metavar="FILE.rrd", help="the recording to open")
+    replay.add_argument(
+        "--memory-limit",
+        metavar="SIZE",
+        help="gRPC server memory (default: four times the file, at least 256MiB)",
+    )
+    _viewer_options(replay)
+    replay.set_defaults(handler=run_replay)

@@ -1,0 +1,271 @@
+"""The live dashboard: a Zenoh client that streams a running swarm into Rerun.
+
+It subscribes to `truth`, every robot's `telemetry` and the liveliness tokens under `alive/`
+and never publishes, queries or declares a token, so starting, killing or restarting it changes
+nothing in the swarm (DESIGN.md §2: the dashboard must never influence the swarm). Zenoh
+callbacks only put the sample on a bounded queue (a full queue drops the sample and counts it);
+the main thread parses, turns messages into records (`SwarmScene`) and logs them on the
+`sim_time` timeline.
+
+One Rerun recording goes to two sinks at once: a gRPC server that the web viewer connects to
+(it keeps up to `server_memory_limit` of data for viewers that connect late; static data is
+never dropped) and `<out>/dashboard.rrd`. A dashboard restarted on the same directory keeps the
+previous file as `dashboard-<n>.rrd`. A file cut off by a kill has no footer but stays readable
+up to its last flushed chunk.
+
+The session is opened on a helper thread because opening waits for the router: a SIGTERM or
+Ctrl-C still stops the dashboard while the swarm is not up.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import socket
+import threading
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+from urllib.parse import quote
+
+import rerun as rr
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
+from services.dashboard import entities
+from services.dashboard.blueprint import default_blueprint
+from services.dashboard.messages import parse_telemetry, parse_truth
+from services.dashboard.scene import SwarmScene, Update
+from world.scenario import Scenario
+
+log = logging.getLogger("swarm.dashboard")
+
+APPLICATION_ID = "swarm-cps"
+RECORDING_FILE = "dashboard.rrd"
+LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "::1", "[::1]"})
+
+
+class DashboardConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scenario: Path
+    swarm: str = "lab"
+    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
+    zenoh_config: Path | None = None
+    host: str = Field(default="127.0.0.1", min_length=1)
+    """Host name or address of this machine as the browser reaches it (printed in the URL)."""
+    web_port: int = Field(default=9090, ge=1, le=65535)
+    grpc_port: int = Field(default=9876, ge=1, le=65535)
+    out_dir: Path | None = None
+    """Where dashboard.rrd is written; None streams live only."""
+    server_memory_limit: str = "256MiB"
+    flush_period_s: float = Field(default=1.0, gt=0.0, le=10.0)
+    """How long records gather before they go out as one chunk per entity: fewer, larger
+    chunks keep the file, the server's buffer and the browser's work small."""
+    queue_size: int = Field(default=20_000, ge=1)
+
+
+def grpc_url(host: str, grpc_port: int) -> str:
+    """The data source a viewer connects to: the gRPC server's proxy endpoint."""
+    return f"rerun+http://{host}:{grpc_port}/proxy"
+
+
+def viewer_url(host: str, web_port: int, grpc_port: int) -> str:
+    """The page to open: the web viewer with its `?url=` data source filled in."""
+    return f"http://{host}:{web_port}/?url={quote(grpc_url(host, grpc_port), safe='')}"
+
+
+def check_port_free(port: int) -> None:
+    """OSError naming the port if something already listens on it (Rerun's servers would only
+    log the failure and run without it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("0.0.0.0", port))
+        except OSError as exc:
+            raise OSError(exc.errno, f"port {port} is in use ({exc.strerror})") from None
+
+
+def keep_previous_recording(path: Path) -> Path | None:
+    """Move an existing recording aside to the first free `<stem>-<n><suffix>`; return it."""
+    if not path.exists():
+        return None
+    n = 1
+    while (kept := path.with_name(f"{path.stem}-{n}{path.suffix}")).exists():
+        n += 1
+    path.rename(kept)
+    return kept
+
+
+@dataclass(frozen=True)
+class _Sample:
+    kind: Literal["truth", "telemetry", "liveliness"]
+    key: str
+    payload: bytes
+    alive: bool = True
+
+
+class DashboardService:
+    def __init__(self, config: DashboardConfig, scenario: Scenario) -> None:
+        self.config = config
+        self.scenario = scenario
+        self.scene = SwarmScene(scenario)
+        self.keys = SwarmKeys(config.swarm)
+        self.stop = threading.Event()
+        self.recording_path = None if config.out_dir is None else config.out_dir / RECORDING_FILE
+        self.kept_recording: Path | None = None
+        self.url = viewer_url(config.host, config.web_port, config.grpc_port)
+        self._inbox: queue.Queue[_Sample] = queue.Queue(maxsize=config.queue_size)
+        self.dropped_samples = 0
+        self._session: zenoh.Session | None = None
+        self._connect_error: BaseException | None = None
+        self._connected = threading.Event()
+        self.counts = {"truth": 0, "telemetry": 0, "liveliness": 0, "rejected": 0}
+
+    # -- zenoh callbacks: queue and return ------------------------------------------------
+
+    def _offer(self, sample: _Sample) -> None:
+        try:
+            self._inbox.put_nowait(sample)
+        except queue.Full:
+            self.dropped_samples += 1
+
+    def _on_truth(self, sample: zenoh.Sample) -> None:
+        self._offer(_Sample("truth", str(sample.key_expr), sample.payload.to_bytes()))
+
+    def _on_telemetry(self, sample: zenoh.Sample) -> None:
+        self._offer(_Sample("telemetry", str(sample.key_expr), sample.payload.to_bytes()))
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        alive = sample.kind == zenoh.SampleKind.PUT
+        self._offer(_Sample("liveliness", str(sample.key_expr), b"", alive))
+
+    # -- session -------------------------------------------------------------------------
+
+    def _open_session(self) -> None:
+        try:
+            self._session = open_client(self.config.connect, self.config.zenoh_config)
+        except Exception as exc:  # reported by the main thread
+            self._connect_error = exc
+        self._connected.set()
+
+    def _subscribe(self, session: zenoh.Session) -> None:
+        keys = self.keys
+        session.declare_subscriber(keys.truth, self._on_truth)
+        session.declare_subscriber(keys.telemetry_all, self._on_telemetry)
+        session.liveliness().declare_subscriber(
+            f"{keys.root}/alive/**", self._on_alive, history=True
+        )
+
+    # -- rerun ---------------------------------------------------------------------------
+
+    def _open_recording(self) -> rr.RecordingStream:
+        cfg = self.config
+        check_port_free(cfg.grpc_port)
+        check_port_free(cfg.web_port)
+        recording = rr.RecordingStream(
+            APPLICATION_ID,
+            recording_id=uuid.uuid4(),
+            batcher_config=rr.ChunkBatcherConfig(flush_tick=cfg.flush_period_s),
+        )
+        cors = None if cfg.host in LOCAL_HOSTS else [f"http://{cfg.host}:{cfg.web_port}"]
+        sinks: list[rr.GrpcServerSink | rr.FileSink] = [
+            rr.GrpcServerSink(
+                port=cfg.grpc_port,
+                server_memory_limit=cfg.server_memory_limit,
+                cors_allow_origin=cors,
+            )
+        ]
+        if self.recording_path is not None:
+            self.recording_path.parent.mkdir(parents=True, exist_ok=True)
+            self.kept_recording = keep_previous_recording(self.recording_path)
+            sinks.append(rr.FileSink(str(self.recording_path)))
+        blueprint = default_blueprint(self.scene.map_bounds_m())
+        rr.set_sinks(*sinks, default_blueprint=blueprint, recording=recording)
+        recording.send_recording_name(f"{cfg.swarm}: {self.scenario.name}")
+        rr.serve_web_viewer(
+            web_port=cfg.web_port,
+            open_browser=False,
+            connect_to=grpc_url(cfg.host, cfg.grpc_port),
+        )
+        return recording
+
+    def _log(self, recording: rr.RecordingStream, update: Update | None) -> None:
+        if update is None:
+            return
+        if update.t_s is not None:
+            recording.set_time(entities.TIMELINE, duration=update.t_s)
+        for record in update.records:
+            recording.log(record.entity_path, *record.archetypes, static=record.static)
+
+    def _handle(self, recording: rr.RecordingStream, sample: _Sample) -> None:
+        if sample.kind == "liveliness":
+            self.counts["liveliness"] += 1
+            role = SwarmKeys.chunk(sample.key, 3)
+            name = SwarmKeys.last_chunk(sample.key)
+            log.info("%s %s %s", role, name, "joined" if sample.alive else "left")
+            self._log(recording, self.scene.on_liveliness(role, name, sample.alive))
+            return
+        if sample.kind == "truth":
+            truth = parse_truth(sample.payload)
+            update = None if truth is None else self.scene.on_truth(truth)
+        else:
+            telemetry = parse_telemetry(sample.payload)
+            update = None if telemetry is None else self.scene.on_telemetry(telemetry)
+        if update is None:
+            self.counts["rejected"] += 1
+            if self.counts["rejected"] == 1:
+                log.warning("ignoring a %s sample on %s that does not fit", sample.kind, sample.key)
+            return
+        self.counts[sample.kind] += 1
+        self._log(recording, update)
+
+    # -- main loop -----------------------------------------------------------------------
+
+    def run(self, on_ready: Callable[[], None] | None = None) -> int:
+        """Stream until `stop` is set; 0 on a clean stop, 1 if the session could not open."""
+        recording = self._open_recording()
+        self._log(recording, self.scene.static_update())
+        if on_ready is not None:
+            on_ready()
+        threading.Thread(target=self._open_session, name="zenoh-connect", daemon=True).start()
+        session: zenoh.Session | None = None
+        code = 0
+        try:
+            while not self.stop.is_set():
+                if session is None and self._connected.is_set():
+                    if self._connect_error is not None:
+                        log.error("cannot open a Zenoh session: %s", self._connect_error)
+                        code = 1
+                        break
+                    session = self._session
+                    assert session is not None
+                    self._subscribe(session)
+                    log.info(
+                        "subscribed to swarm %s via %s", self.config.swarm, self.config.connect
+                    )
+                try:
+                    sample = self._inbox.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                self._handle(recording, sample)
+                for _ in range(self._inbox.qsize()):
+                    self._handle(recording, self._inbox.get_nowait())
+        finally:
+            if session is not None:
+                session.close()
+            recording.flush(timeout_sec=10.0)
+            recording.disconnect()
+        log.info(
+            "stopped: %d truth, %d telemetry, %d liveliness samples, %d rejected, %d dropped",
+            self.counts["truth"],
+            self.counts["telemetry"],
+            self.counts["liveliness"],
+            self.counts["rejected"],
+            self.dropped_samples,
+        )
+        return code

@@ -1,0 +1,89 @@
+"""`dashboard` and `replay` as a user meets them: mistakes exit 2 in one line; stop means stop."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import socket
+import warnings
+from pathlib import Path
+
+import pytest
+
+from services.dashboard.cli import add_dashboard_parsers, run_dashboard, run_replay
+from tests.dashboard.conftest import PAPER, Child, free_port, read_recording, start
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="swarm")
+    add_dashboard_parsers(parser.add_subparsers(dest="command"))
+    return parser
+
+
+def test_both_subcommands_are_registered_with_their_handlers() -> None:
+    parser = _parser()
+    dashboard = parser.parse_args(["dashboard", "--scenario", str(PAPER), "--out", "runs/x"])
+    assert dashboard.handler is run_dashboard
+    assert (dashboard.web_port, dashboard.grpc_port, dashboard.host) == (9090, 9876, "127.0.0.1")
+    assert dashboard.memory_limit == "256MiB"
+    replay = parser.parse_args(["replay", "runs/x/dashboard.rrd", "--web-port", "9191"])
+    assert replay.handler is run_replay and replay.web_port == 9191
+
+
+def test_missing_scenario_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = _parser().parse_args(["dashboard", "--scenario", str(tmp_path / "nope.yaml")])
+    assert args.handler(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("swarm dashboard: ") and "nope.yaml" in err and len(err.splitlines()) == 1
+
+
+def test_port_in_use_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as taken:
+        taken.bind(("0.0.0.0", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        args = _parser().parse_args(
+            ["dashboard", "--scenario", str(PAPER), "--grpc-port", str(port)]
+            + ["--web-port", str(free_port())]
+        )
+        assert args.handler(args) == 2
+    assert f"port {port} is in use" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "problem"),
+    [("--web-port", "70000", "web_port"), ("--swarm", "Bad Name", "swarm name")],
+)
+def test_bad_settings_are_one_line_usage_errors(
+    option: str, value: str, problem: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = _parser().parse_args(["dashboard", "--scenario", str(PAPER), option, value])
+    assert args.handler(args) == 2
+    err = capsys.readouterr().err
+    assert problem in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_replay_of_a_missing_file_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = _parser().parse_args(["replay", str(tmp_path / "none.rrd")])
+    assert args.handler(args) == 2
+    assert "no such recording" in capsys.readouterr().err
+
+
+def test_dashboard_waiting_for_an_absent_router_stops_on_sigterm(
+    tmp_path: Path, children: list[Child]
+) -> None:
+    argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
+    argv += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--out", str(tmp_path)]
+    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+    dashboard = start("dashboard", argv, tmp_path / "logs")
+    children.append(dashboard)
+    dashboard.wait_for_line("open http://127.0.0.1:")
+    assert dashboard.stop(signal.SIGTERM, timeout_s=15) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a clean stop writes the footer: no legacy warning
+        recording = read_recording(tmp_path / "dashboard.rrd")
+    assert recording["/map/reference_path"].static
