@@ -164,6 +164,11 @@ def _cmd_up(args: argparse.Namespace) -> int:
             f"logs: {out_dir / 'logs'}/<process>.log; summary: {out_dir / 'summary.json'}",
             flush=True,
         )
+        if plan.dashboard:
+            print(
+                f"dashboard: open {plan.viewer_url}  (recording: {out_dir / 'dashboard.rrd'})",
+                flush=True,
+            )
         print(
             "try: swarm status | swarm kill robot2 | swarm restart robot2 | "
             "swarm net set --loss 0.2",
