@@ -100,6 +100,7 @@ def write_json_atomically(path: Path, data: object, durable: bool = True) -> Non
             handle.flush()
             if durable:
                 os.fsync(handle.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a summary is for everyone to read
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
