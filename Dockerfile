@@ -1,0 +1,77 @@
+# One image for every process of the networked swarm: router, world, robots, dashboard.
+#
+#   docker compose build                  (or: docker build -t swarm-cps:local .)
+#
+# BASE_IMAGE must provide python3 3.11 with the venv module: python:3.11-slim (the default), or
+# a Debian bookworm rootfs with python3 and python3-venv, which scripts/compose-smoke.sh makes
+# with debootstrap and imports as local/debian-py:bookworm where no registry is reachable.
+#
+# Python packages come from PyPI, or, when WHEELS_URL is set, only from the wheels listed at
+# that URL (pip --no-index --find-links): scripts/compose-smoke.sh downloads them on the host,
+# pinned to the versions in .venv, and serves them on 127.0.0.1 to a build that runs on the
+# host's network (docker-compose.ci.yml). Either way the wheels never enter the image.
+#
+# The project is installed in editable mode at /app on purpose: robot_firmware/net/session.py
+# reads configs/zenoh/*.json5 from beside the source tree (wait for the router, reconnect, short
+# lease), so the source stays at /app with configs/ next to it (compose mounts ./configs there).
+# No compilers, no dev tools, no test suites. Only the modules the project imports are
+# byte-compiled (at build time), which keeps the image smaller and container starts fast.
+
+ARG BASE_IMAGE=python:3.11-slim
+FROM ${BASE_IMAGE}
+
+ARG WHEELS_URL=
+ENV PATH=/opt/venv/bin:$PATH \
+    VIRTUAL_ENV=/opt/venv \
+    PYTHONUNBUFFERED=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_ROOT_USER_ACTION=ignore \
+    MPLBACKEND=Agg \
+    MPLCONFIGDIR=/tmp/matplotlib
+
+# The runtime dependencies of pyproject.toml (and setuptools, the build backend of the editable
+# install below), in their own layer so that it survives edits of the source.
+COPY pyproject.toml /tmp/pyproject.toml
+RUN set -eu; \
+    if [ -n "$WHEELS_URL" ]; then \
+        echo "installing from the wheels at $WHEELS_URL only"; \
+        set -- --no-index --find-links "$WHEELS_URL"; \
+    else \
+        set --; \
+        if [ -f /etc/ssl/certs/ca-certificates.crt ]; then \
+            export PIP_CERT=/etc/ssl/certs/ca-certificates.crt; \
+        fi; \
+    fi; \
+    python3 -m venv /opt/venv; \
+    python -c 'import sys, tomllib; \
+print("\n".join(tomllib.load(open(sys.argv[1], "rb"))["project"]["dependencies"]))' \
+        /tmp/pyproject.toml > /tmp/requirements.txt; \
+    pip install "$@" --no-compile --only-binary=:all: -r /tmp/requirements.txt \
+        "setuptools>=68" wheel; \
+    find /opt/venv/lib/python3*/site-packages -depth -type d -name tests -exec rm -rf {} +; \
+    rm -rf /tmp/pyproject.toml /tmp/requirements.txt
+
+# The source: the packages that pyproject.toml names, the scenarios and the Zenoh configs.
+COPY pyproject.toml README.md /app/
+COPY robot_firmware /app/robot_firmware
+COPY world /app/world
+COPY services /app/services
+COPY configs /app/configs
+WORKDIR /app
+RUN set -eu; \
+    pip install --no-index --no-deps --no-build-isolation -e /app; \
+    rm -rf /app/build /app/*.egg-info; \
+    swarm --help > /dev/null; \
+    python -c 'import importlib, pkgutil; \
+names = [m.name for p in ("robot_firmware", "world", "services") \
+         for m in pkgutil.walk_packages(importlib.import_module(p).__path__, p + ".") \
+         if not m.name.endswith("__main__")]; \
+[importlib.import_module(n) for n in names]; \
+print(f"imported {len(names)} project modules: their byte code is in the image")'; \
+    mkdir -p /runs
+
+# 7447: Zenoh router; 9090: Rerun web viewer; 9876: Rerun gRPC (dashboard).
+EXPOSE 7447 9090 9876
+STOPSIGNAL SIGTERM
+CMD ["swarm", "--help"]
