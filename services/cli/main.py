@@ -500,8 +500,10 @@ def build_parser() -> argparse.ArgumentParser:
     router.set_defaults(handler=_cmd_router)
 
     from services.dashboard.cli import add_dashboard_parsers
+    from services.tuner.cli import add_tune_parser
 
     add_dashboard_parsers(sub)
+    add_tune_parser(sub)
     return parser
 
 

@@ -1,0 +1,185 @@
+"""`swarm tune`: outputs robots can load, monotone convergence, exact resume, clear errors."""
+
+import argparse
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_firmware.control.fuzzy_parameters import FuzzyParameters
+from services.tuner import fuzzy_tuning
+from services.tuner.cli import add_tune_parser, parse_algorithms, run_tune
+from services.tuner.evaluation import FloatArray, Objective
+from services.tuner.fuzzy_tuning import read_convergence_csv
+from world.scenario import ScenarioError, load_rule_base, load_scenario
+
+ROOT = Path(__file__).resolve().parents[3]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+TINY = ["--budget", "90", "--duration", "1.0"]
+
+
+def tune_args(*args: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="swarm")
+    add_tune_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["tune", *args])
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("tune")
+    args = tune_args("--scenario", str(PAPER), "--out", str(out), "--algo", "ofa,pso", *TINY)
+    assert args.handler is run_tune
+    assert run_tune(args) == 0
+    return out
+
+
+def test_best_fuzzy_file_is_loadable_by_robots_and_scenarios(tiny_run: Path) -> None:
+    best = tiny_run / "best_fuzzy.yaml"
+    parameters = FuzzyParameters.load(best)
+    assert 2 <= len(parameters.error_centres) <= 7
+    scenario_file = tiny_run / "tuned.yaml"
+    scenario_file.write_text(
+        PAPER.read_text(encoding="utf-8") + "\nfuzzy_parameter_file: best_fuzzy.yaml\n",
+        encoding="utf-8",
+    )
+    rule_base = load_rule_base(load_scenario(scenario_file))
+    assert int(rule_base.rule_count) == len(parameters.error_centres) * len(parameters.rate_centres)
+    summary = json.loads((tiny_run / "tune.json").read_text(encoding="utf-8"))
+    winner = summary["results"][summary["best_algorithm"]]
+    assert winner["best_fuzzy"] == parameters.model_dump(exclude_none=True)
+    assert winner["recomputed_best_cost"] == winner["best_cost"]
+
+
+def test_convergence_csv_never_gets_worse_and_spends_the_budget(tiny_run: Path) -> None:
+    rows = read_convergence_csv(tiny_run / "convergence.csv")
+    assert {row["algorithm"] for row in rows} == {"ofa", "pso"}
+    for algorithm in ("ofa", "pso"):
+        mine = [row for row in rows if row["algorithm"] == algorithm]
+        cost = np.array([float(row["best_cost"]) for row in mine])
+        evaluations = np.array([int(row["evaluations"]) for row in mine])
+        fitness_db = np.array([float(row["best_fitness_db"]) for row in mine])
+        assert len(mine) >= 3
+        assert np.all(np.diff(cost) <= 0.0)
+        assert np.all(np.diff(evaluations) > 0) and evaluations[-1] == 90
+        np.testing.assert_allclose(fitness_db, -10.0 * np.log10(cost))
+    assert (tiny_run / "convergence.png").read_bytes().startswith(PNG_MAGIC)
+
+
+def test_progress_line_shows_generation_evaluations_best_and_rate(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = tune_args("--scenario", str(PAPER), "--out", str(tmp_path), "--algo", "ga", *TINY)
+    assert run_tune(args) == 0
+    captured = capsys.readouterr()
+    lines = [line for line in captured.err.splitlines() if line.startswith("tune ga")]
+    assert len(lines) >= 3
+    assert all("evals" in line and "dB" in line and "evals/s" in line for line in lines)
+    assert "gen   0" in lines[0] and "90/90" in lines[-1]
+    assert "wall time" in captured.out
+
+
+def _interrupt_after(calls: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = fuzzy_tuning.make_objective
+
+    def interrupting(*args: object, **kwargs: object) -> Objective:
+        inner = real(*args, **kwargs)  # type: ignore[arg-type]
+        count = [0]
+
+        def objective(x: FloatArray) -> FloatArray:
+            count[0] += 1
+            if count[0] > calls:
+                raise KeyboardInterrupt
+            return inner(x)
+
+        return objective
+
+    monkeypatch.setattr(fuzzy_tuning, "make_objective", interrupting)
+
+
+def _outputs(out: Path) -> tuple[str, str, str]:
+    return (
+        (out / "ofa" / "convergence.csv").read_text(encoding="utf-8"),
+        (out / "ofa" / "best_fuzzy.yaml").read_text(encoding="utf-8"),
+        (out / "best_fuzzy.yaml").read_text(encoding="utf-8"),
+    )
+
+
+def test_resume_after_an_interruption_gives_the_uninterrupted_result(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    budget = ["--budget", "130", "--duration", "1.0"]
+    whole = tmp_path / "whole"
+    assert run_tune(tune_args("--scenario", str(PAPER), "--out", str(whole), *budget)) == 0
+
+    split = tmp_path / "split"
+    with monkeypatch.context() as patch:
+        _interrupt_after(2, patch)
+        status = run_tune(tune_args("--scenario", str(PAPER), "--out", str(split), *budget))
+    assert status == 130
+    assert (split / "ofa" / "checkpoint.npz").exists()
+    assert not (split / "best_fuzzy.yaml").exists()
+    resumed = run_tune(
+        tune_args("--scenario", str(PAPER), "--out", str(split), "--resume", *budget)
+    )
+    assert resumed == 0
+    assert _outputs(split) == _outputs(whole)
+
+
+def test_existing_run_without_resume_or_with_other_settings_is_refused(tiny_run: Path) -> None:
+    again = tune_args("--scenario", str(PAPER), "--out", str(tiny_run), "--algo", "ofa", *TINY)
+    with pytest.raises(ValueError, match="--resume"):
+        run_tune(again)
+    clash = tune_args("--scenario", str(PAPER), "--out", str(tiny_run), "--algo", "fa,ofa", *TINY)
+    with pytest.raises(ValueError, match="--resume"):
+        run_tune(clash)
+    assert not (tiny_run / "fa").exists()  # refused before the first algorithm started
+    other = tune_args(
+        "--scenario",
+        str(PAPER),
+        "--out",
+        str(tiny_run),
+        "--algo",
+        "ofa",
+        "--resume",
+        "--budget",
+        "91",
+        "--duration",
+        "1.5",
+    )
+    with pytest.raises(ValueError, match="budget"):
+        run_tune(other)
+
+
+@pytest.mark.parametrize(
+    ("extra", "error", "message"),
+    [
+        (["--algo", "sa"], ValueError, "unknown algorithm 'sa'.*fa, ga, ofa, pso"),
+        (["--algo", "ofa,ofa"], ValueError, "twice"),
+        (["--budget", "0"], ValueError, "budget"),
+        (["--seed", "-1"], ValueError, "seed"),
+        (["--duration", "-2"], ValueError, "duration"),
+    ],
+)
+def test_bad_flags_give_clear_errors(
+    tmp_path: Path, extra: list[str], error: type[Exception], message: str
+) -> None:
+    args = tune_args("--scenario", str(PAPER), "--out", str(tmp_path), *extra)
+    with pytest.raises(error, match=message):
+        run_tune(args)
+    assert not any(tmp_path.iterdir())
+
+
+def test_missing_scenario_is_a_scenario_error(tmp_path: Path) -> None:
+    args = tune_args("--scenario", str(tmp_path / "nope.yaml"), "--out", str(tmp_path / "out"))
+    with pytest.raises(ScenarioError, match=r"nope\.yaml"):
+        run_tune(args)
+
+
+def test_algorithm_lists_are_parsed_in_order() -> None:
+    assert parse_algorithms("OFA, ga,pso") == ["ofa", "ga", "pso"]
+    check: Callable[[str], list[str]] = parse_algorithms
+    with pytest.raises(ValueError, match="one or more"):
+        check(" , ")
