@@ -59,7 +59,7 @@ def niapy_firefly(
     from niapy.problems import Problem
     from niapy.task import Task
 
-    class UnitBox(Problem):  # type: ignore[misc]
+    class UnitBox(Problem):
         def __init__(self) -> None:
             super().__init__(dim, 0.0, 1.0)
 

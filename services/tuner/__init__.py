@@ -9,6 +9,12 @@ Every optimiser minimises a positive cost over [0, 1]^D, evaluates each
 generation as one batch, draws randomness only from an injected generator, and
 can checkpoint and resume a run exactly. :data:`ALGORITHMS` gives them one
 signature.
+
+The fuzzy-tuning problem itself lives in modules imported on their own, since they
+pull in the batch simulator: :mod:`services.tuner.fuzzy_encoding` (the decision
+vector of a scheduler), :mod:`services.tuner.fitness` (eq. 16 through one batch
+simulation), :mod:`services.tuner.fuzzy_tuning` (a resumable run on disk, Fig. 14)
+and :mod:`services.tuner.cli` (``swarm tune``).
 """
 
 from services.tuner.baselines import (

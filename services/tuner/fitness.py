@@ -22,8 +22,7 @@ that collides gets ``collision_penalty`` (default 1.0, in the units of the error
 its cost per collision, so that one collision weighs as much as a metre of average absolute
 error: far more than the cost of any collision-free candidate of the paper scenario (random
 candidates cost 0.15-0.17 at 30 s evaluations), while colliding candidates stay ordered by their
-tracking error. A candidate whose
-error sum is not finite costs :data:`FAILED_CANDIDATE_COST`.
+tracking error. A candidate whose error sum is not finite costs :data:`FAILED_CANDIDATE_COST`.
 
 Shorter evaluations: ``duration_s`` shortens the simulated run (tuning is dominated by
 simulation time). The steady-state window then keeps its share of the run: its start becomes

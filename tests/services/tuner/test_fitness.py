@@ -41,7 +41,10 @@ def test_table2_vector_scores_what_run_batch_gives_directly(paper: Scenario) -> 
     )
     error_sum = direct.metrics.mean_abs_error_sum()
     expected_db = fitness_snr(
-        error_sum, direct.rule_count, paper.fitness.error_weight, paper.fitness.rule_weight
+        error_sum,
+        direct.rule_count.astype(np.float64),
+        paper.fitness.error_weight,
+        paper.fitness.rule_weight,
     )
     np.testing.assert_allclose(result.fitness_db, expected_db, rtol=1e-12)
     np.testing.assert_array_equal(result.mean_abs_error_sum, error_sum)

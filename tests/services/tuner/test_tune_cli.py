@@ -4,6 +4,7 @@ import argparse
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from services.tuner import fuzzy_tuning
 from services.tuner.cli import add_tune_parser, parse_algorithms, run_tune
 from services.tuner.evaluation import FloatArray, Objective
 from services.tuner.fuzzy_tuning import read_convergence_csv
-from world.scenario import ScenarioError, load_rule_base, load_scenario
+from world.scenario import Scenario, ScenarioError, load_rule_base, load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -84,8 +85,8 @@ def test_progress_line_shows_generation_evaluations_best_and_rate(
 def _interrupt_after(calls: int, monkeypatch: pytest.MonkeyPatch) -> None:
     real = fuzzy_tuning.make_objective
 
-    def interrupting(*args: object, **kwargs: object) -> Objective:
-        inner = real(*args, **kwargs)  # type: ignore[arg-type]
+    def interrupting(scenario: Scenario, **kwargs: Any) -> Objective:
+        inner = real(scenario, **kwargs)
         count = [0]
 
         def objective(x: FloatArray) -> FloatArray:
