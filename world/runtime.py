@@ -94,6 +94,7 @@ class WorldProcess:
         self._wake = threading.Event()
         self.stop = threading.Event()
         self.malformed_acts = 0
+        self.malformed_telemetry = 0
         self.unknown_senders = 0
         self.frames_owed = np.zeros(len(self.names), dtype=np.int64)
         self.first_tick_owed = np.zeros(len(self.names), dtype=np.int64)
@@ -128,7 +129,7 @@ class WorldProcess:
             if isinstance(data, dict) and isinstance(data.get("timing"), dict):
                 self.timing[str(data.get("robot"))] = data["timing"]
         except (ValueError, UnicodeDecodeError):
-            pass
+            self.malformed_telemetry += 1
 
     # -- queues, drained by the main loop ------------------------------------------------
 
@@ -415,6 +416,7 @@ class WorldProcess:
         summary["clock_mode"] = "lockstep" if self.config.lockstep else "real_time"
         summary["control_timing"] = {name: self.timing.get(name) for name in self.names}
         summary["malformed_acts"] = self.malformed_acts
+        summary["malformed_telemetry"] = self.malformed_telemetry
         return summary
 
     def write_summary(self, final: bool = False) -> None:
