@@ -66,7 +66,7 @@ class LiveSwarm:
             return {}
         return json.loads(result.stdout)
 
-    def wait_for(self, predicate, timeout_s: float = 30.0, every_s: float = 0.5):  # type: ignore[no-untyped-def]
+    def wait_for(self, predicate, timeout_s: float = 90.0, every_s: float = 0.5):  # type: ignore[no-untyped-def]
         deadline = time.monotonic() + timeout_s
         last = None
         while time.monotonic() < deadline:
