@@ -22,8 +22,9 @@ end up in one figure. The optimiser's state is saved after every generation; ``-
 continues an interrupted run (Ctrl-C included) and gives the result an uninterrupted run would.
 
 A user mistake (unreadable scenario, unknown algorithm, bad number, an existing run without
-``--resume``) raises :class:`~world.scenario.ScenarioError` or ValueError with a message; the
-``swarm`` command prints it and exits with status 2.
+``--resume``) raises :class:`~world.scenario.ScenarioError` or :class:`TuneArgumentError`, a
+ValueError that is also a ScenarioError; the ``swarm`` command prints its message and exits
+with status 2.
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ from services.tuner.fuzzy_tuning import (
     write_text_atomically,
 )
 from services.tuner.registry import ALGORITHMS
-from world.scenario import load_scenario
+from world.scenario import ScenarioError, load_scenario
 
 DEFAULT_ALGORITHM = "ofa"
 DEFAULT_BUDGET = 800
@@ -67,6 +68,10 @@ DEFAULT_EVALUATION_DURATION_S = 30.0
 """Simulated seconds per evaluation (at most the scenario's duration); on the paper scenario the
 steady window is then 10-30 s, more than one lap of the circle and one pass of the obstacle."""
 EXIT_INTERRUPTED = 130
+
+
+class TuneArgumentError(ScenarioError, ValueError):
+    """A mistake on the ``swarm tune`` command line, reported in one line with exit status 2."""
 
 
 def parse_algorithms(text: str) -> list[str]:
@@ -185,23 +190,28 @@ def run_tune(args: argparse.Namespace) -> int:
     """Handler of ``swarm tune``; returns the exit status (0, or 130 when interrupted)."""
     wall_start = time.perf_counter()
     cpu_start = time.process_time()
-    algorithms = parse_algorithms(str(args.algo))
     scenario_path = Path(args.scenario)
-    scenario = load_scenario(scenario_path)
     out_dir = Path(args.out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"--out {out_dir} exists and is not a folder")
-    duration_s = (
-        min(DEFAULT_EVALUATION_DURATION_S, scenario.duration_s)
-        if args.duration is None
-        else float(args.duration)
-    )
-    all_settings = [
-        TuningSettings.create(scenario, name, int(args.budget), int(args.seed), duration_s)
-        for name in algorithms
-    ]
-    for settings in all_settings:  # refuse a clash before any algorithm starts
-        prepare_run_dir(out_dir / settings.algorithm, settings, bool(args.resume))
+    try:
+        algorithms = parse_algorithms(str(args.algo))
+        scenario = load_scenario(scenario_path)
+        if out_dir.exists() and not out_dir.is_dir():
+            raise ValueError(f"--out {out_dir} exists and is not a folder")
+        duration_s = (
+            min(DEFAULT_EVALUATION_DURATION_S, scenario.duration_s)
+            if args.duration is None
+            else float(args.duration)
+        )
+        all_settings = [
+            TuningSettings.create(scenario, name, int(args.budget), int(args.seed), duration_s)
+            for name in algorithms
+        ]
+        for settings in all_settings:  # refuse a clash before any algorithm starts
+            prepare_run_dir(out_dir / settings.algorithm, settings, bool(args.resume))
+    except ScenarioError:
+        raise
+    except ValueError as exc:
+        raise TuneArgumentError(str(exc)) from None
     first = all_settings[0]
     print(
         f"tune {','.join(algorithms)} on {scenario.name}: {first.budget} evaluations each of "

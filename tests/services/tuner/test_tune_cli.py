@@ -179,6 +179,17 @@ def test_missing_scenario_is_a_scenario_error(tmp_path: Path) -> None:
         run_tune(args)
 
 
+def test_swarm_command_reports_a_bad_flag_in_one_line_with_status_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from services.cli.main import main
+
+    status = main(["tune", "--scenario", str(PAPER), "--out", str(tmp_path), "--algo", "sa"])
+    assert status == 2
+    error = capsys.readouterr().err
+    assert "unknown algorithm 'sa'" in error and "Traceback" not in error
+
+
 def test_algorithm_lists_are_parsed_in_order() -> None:
     assert parse_algorithms("OFA, ga,pso") == ["ofa", "ga", "pso"]
     check: Callable[[str], list[str]] = parse_algorithms
