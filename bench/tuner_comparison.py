@@ -14,8 +14,11 @@ machine and the date:
   smallest two-sided p-value the exact test can give is 2 / 2^n (0.0625 for 5 seeds).
 
 Results (every run's best fitness, best vector and convergence history) go to a JSON file,
-the median curves to a PNG. Runs are spread over ``--jobs`` processes. The defaults (10
-seeds, 600 evaluations of 30 s, all cores) take about half an hour on an idle 2-core machine.
+the median curves to a PNG. Runs are spread over ``--jobs`` processes. Every finished run is
+appended at once to ``<json>.runs.jsonl``; started again with the same settings, the script
+takes the runs found there and runs only the rest, so a killed benchmark loses at most the
+runs in progress (``--fresh`` ignores them). The defaults (10 seeds, 600 evaluations of 30 s,
+all cores) take about an hour on an idle 2-core machine.
 
     .venv/bin/python bench/tuner_comparison.py [--seeds 10] [--budget 600] [--duration 30]
         [--algos ofa,fa,ga,pso] [--jobs N] [--json runs/bench/tuner_comparison.json]
@@ -28,7 +31,7 @@ import json
 import os
 import statistics
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -89,6 +92,42 @@ def run_one(
     )
 
 
+def run_settings(args: argparse.Namespace) -> dict[str, object]:
+    """What makes two runs of one algorithm and seed the same run."""
+    return {
+        "scenario": str(args.scenario.resolve()),
+        "budget": args.budget,
+        "duration_s": args.duration,
+    }
+
+
+def load_finished_runs(
+    checkpoint_path: Path, settings: dict[str, object]
+) -> dict[tuple[str, int], RunRecord]:
+    """Runs already finished with these settings; lines from other settings or cut short by
+    a kill are skipped."""
+    finished: dict[tuple[str, int], RunRecord] = {}
+    if not checkpoint_path.exists():
+        return finished
+    for line in checkpoint_path.read_text(encoding="utf-8").splitlines():
+        try:
+            entry = json.loads(line)
+            if entry.get("settings") != settings:
+                continue
+            run = RunRecord(**entry["run"])
+        except (ValueError, TypeError, KeyError):
+            continue
+        finished[(run.algorithm, run.seed)] = run
+    return finished
+
+
+def append_finished_run(checkpoint_path: Path, settings: dict[str, object], run: RunRecord) -> None:
+    with checkpoint_path.open("a", encoding="utf-8") as stream:
+        stream.write(json.dumps({"settings": settings, "run": asdict(run)}) + "\n")
+        stream.flush()
+        os.fsync(stream.fileno())
+
+
 def best_at(run: RunRecord, evaluations: int) -> float:
     """Best fitness a run had reached after ``evaluations`` evaluations (NaN before any)."""
     spent = np.asarray(run.history_evaluations)
@@ -132,6 +171,11 @@ def main() -> None:
         "--json", type=Path, default=ROOT / "runs/bench/tuner_comparison.json", dest="json_path"
     )
     parser.add_argument("--figure", type=Path, default=None, help="PNG (default: beside JSON)")
+    parser.add_argument(
+        "--fresh",
+        action="store_true",
+        help="ignore runs finished earlier (<json>.runs.jsonl) and run every one again",
+    )
     args = parser.parse_args()
     algorithms = [a.strip() for a in args.algos.split(",") if a.strip()]
     unknown = [a for a in algorithms if a not in ALGORITHMS]
@@ -144,13 +188,31 @@ def main() -> None:
     reference = evaluate_fitness(encode_default(), scenario, duration_s=args.duration)
     seeds = list(range(args.seeds))
     tasks = [(a, s) for s in seeds for a in algorithms]
+    args.json_path.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint_path = args.json_path.with_name(args.json_path.name + ".runs.jsonl")
+    settings = run_settings(args)
+    if args.fresh:
+        checkpoint_path.unlink(missing_ok=True)
+    finished = load_finished_runs(checkpoint_path, settings)
+    pending = [task for task in tasks if task not in finished]
+    if len(pending) < len(tasks):
+        print(f"# {len(tasks) - len(pending)} runs taken from {checkpoint_path}", flush=True)
     wall_start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = [
-            pool.submit(run_one, str(args.scenario), a, s, args.budget, args.duration)
-            for a, s in tasks
-        ]
-        runs = [future.result() for future in futures]
+        futures = {
+            pool.submit(run_one, str(args.scenario), a, s, args.budget, args.duration): (a, s)
+            for a, s in pending
+        }
+        for future in as_completed(futures):
+            run = future.result()
+            append_finished_run(checkpoint_path, settings, run)
+            finished[(run.algorithm, run.seed)] = run
+            print(
+                f"# {len(finished)}/{len(tasks)} {run.algorithm} seed {run.seed}: "
+                f"{run.best_fitness_db:.3f} dB, {run.wall_time_s:.0f} s",
+                flush=True,
+            )
+    runs = [finished[task] for task in tasks]
     total_wall_s = time.perf_counter() - wall_start
 
     by_algorithm = {
@@ -167,6 +229,7 @@ def main() -> None:
     print(
         f"# {len(algorithms)} algorithms x {len(seeds)} optimiser seeds x {args.budget} "
         f"evaluations, {args.jobs} processes, {total_wall_s:.0f} s wall"
+        f" for the {len(pending)} runs not taken from the checkpoint"
     )
     print(f"# Table 2 with even centres: {float(reference.fitness_db[0]):.3f} dB")
     print()
@@ -213,7 +276,6 @@ def main() -> None:
                 f"{statistic:>11}{p_value:>10}"
             )
 
-    args.json_path.parent.mkdir(parents=True, exist_ok=True)
     record = {
         "machine": machine_record(),
         "scenario": str(args.scenario),
