@@ -7,8 +7,11 @@ plain FA, a real-coded GA and PSO (Fig. 14), on the SNR fitness of eq. 16.
 
 Every optimiser minimises a positive cost over [0, 1]^D, evaluates each
 generation as one batch, draws randomness only from an injected generator, and
-can checkpoint and resume a run exactly. :data:`ALGORITHMS` gives them one
-signature.
+can checkpoint and resume a run exactly. An algorithm object
+(:class:`OrthogonalFireflyAlgorithm`, :class:`FireflyAlgorithm`, :class:`GeneticAlgorithm`,
+:class:`ParticleSwarm`, each holding its parameters) says how one generation is made;
+:func:`run_population_algorithm` runs it on an objective, and :data:`ALGORITHMS` gives the
+default-parameter ones a seed-based signature.
 
 The fuzzy-tuning problem itself lives in modules imported on their own, since they
 pull in the batch simulator: :mod:`services.tuner.fuzzy_encoding` (the decision
@@ -18,11 +21,10 @@ and :mod:`services.tuner.cli` (``swarm tune``).
 """
 
 from services.tuner.baselines import (
+    GeneticAlgorithm,
     GeneticParameters,
+    ParticleSwarm,
     ParticleSwarmParameters,
-    run_fa,
-    run_ga,
-    run_pso,
 )
 from services.tuner.benchmark_functions import (
     BENCHMARK_FUNCTIONS,
@@ -38,15 +40,16 @@ from services.tuner.evaluation import (
     ProgressCallback,
     snr_fitness_from_cost,
 )
-from services.tuner.firefly import FireflyParameters
+from services.tuner.firefly import FireflyAlgorithm, FireflyParameters
+from services.tuner.generational import run_population_algorithm
 from services.tuner.ofa import (
     OFAParameters,
+    OrthogonalFireflyAlgorithm,
     make_ofa_trial,
     ofa_parameters_from_design,
-    run_ofa,
 )
 from services.tuner.rank_mutation import RankMutationParameters
-from services.tuner.registry import ALGORITHMS, AlgorithmRunner
+from services.tuner.registry import ALGORITHMS, AlgorithmRunner, seeded_runner
 from services.tuner.result import ConvergenceHistory, OptimisationResult
 from services.tuner.taguchi import (
     TaguchiFactor,
@@ -63,11 +66,15 @@ __all__ = [
     "CheckpointMismatchError",
     "ConvergenceHistory",
     "EvaluationBudget",
+    "FireflyAlgorithm",
     "FireflyParameters",
+    "GeneticAlgorithm",
     "GeneticParameters",
     "OFAParameters",
     "Objective",
     "OptimisationResult",
+    "OrthogonalFireflyAlgorithm",
+    "ParticleSwarm",
     "ParticleSwarmParameters",
     "ProgressCallback",
     "RankMutationParameters",
@@ -79,10 +86,8 @@ __all__ = [
     "ofa_parameters_from_design",
     "rastrigin",
     "rosenbrock",
-    "run_fa",
-    "run_ga",
-    "run_ofa",
-    "run_pso",
+    "run_population_algorithm",
+    "seeded_runner",
     "snr_fitness_from_cost",
     "sphere",
     "table1_factors",

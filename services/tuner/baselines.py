@@ -1,11 +1,10 @@
-"""Baselines the paper compares the OFA with (Fig. 14): plain FA, a real-coded GA and PSO.
+"""Baselines the paper compares the OFA with (Fig. 14): a real-coded GA and PSO.
 
-All three run in the same generation loop as the OFA, on [0, 1]^D, with one
+The third baseline, plain FA, is :class:`~services.tuner.firefly.FireflyAlgorithm`. All
+of them run in the same generation loop as the OFA, on [0, 1]^D, with one
 batch evaluation per generation and the same budget rules, so the comparison is
 at an equal number of evaluations.
 
-* Plain FA: eqs. 1-4 with :class:`~services.tuner.firefly.FireflyParameters`'
-  defaults (untuned) and no mutation.
 * Real-coded GA: binary tournament selection, blend crossover BLX-alpha (each
   child gene uniform in [min - alpha d, max + alpha d] of the parents' genes,
   d = |difference|), Gaussian mutation per gene, clipping to [0, 1], and
@@ -18,48 +17,13 @@ at an equal number of evaluations.
 
 from __future__ import annotations
 
-import os
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from services.tuner.evaluation import (
-    EvaluationBudget,
-    FloatArray,
-    IntArray,
-    Objective,
-    ProgressCallback,
-)
-from services.tuner.firefly import FireflyAlgorithm, FireflyParameters
-from services.tuner.generational import Population, replace_evaluated, run_population_algorithm
-from services.tuner.result import OptimisationResult
-
-DEFAULT_FIREFLY_PARAMETERS = FireflyParameters()
-
-
-def run_fa(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    rng: np.random.Generator,
-    params: FireflyParameters = DEFAULT_FIREFLY_PARAMETERS,
-    *,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    checkpoint_every: int = 10,
-    progress: ProgressCallback | None = None,
-) -> OptimisationResult:
-    """Minimise ``objective`` over [0, 1]^dim with the plain FA, at most ``budget`` evaluations."""
-    return run_population_algorithm(
-        FireflyAlgorithm(params),
-        objective,
-        dim,
-        budget,
-        rng,
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
+from services.tuner.evaluation import EvaluationBudget, FloatArray, IntArray
+from services.tuner.generational import ParametrisedAlgorithm, Population, replace_evaluated
 
 
 @dataclass(frozen=True)
@@ -118,30 +82,12 @@ def blend_crossover(
 
 
 @dataclass(frozen=True)
-class GeneticAlgorithm:
+class GeneticAlgorithm(ParametrisedAlgorithm):
     """Real-coded GA with elitism (see the module docstring)."""
 
     params: GeneticParameters = DEFAULT_GENETIC_PARAMETERS
 
-    @property
-    def name(self) -> str:
-        return "ga"
-
-    @property
-    def population_size(self) -> int:
-        return self.params.population_size
-
-    @property
-    def max_generations(self) -> int | None:
-        return self.params.n_generations
-
-    def settings(self) -> Mapping[str, object]:
-        return asdict(self.params)
-
-    def start(
-        self, positions: FloatArray, costs: FloatArray, rng: np.random.Generator
-    ) -> Population:
-        return Population(positions, costs)
+    name: ClassVar[str] = "ga"
 
     def step(
         self,
@@ -181,30 +127,6 @@ class GeneticAlgorithm:
         )
 
 
-def run_ga(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    rng: np.random.Generator,
-    params: GeneticParameters = DEFAULT_GENETIC_PARAMETERS,
-    *,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    checkpoint_every: int = 10,
-    progress: ProgressCallback | None = None,
-) -> OptimisationResult:
-    """Minimise ``objective`` over [0, 1]^dim with the GA, at most ``budget`` evaluations."""
-    return run_population_algorithm(
-        GeneticAlgorithm(params),
-        objective,
-        dim,
-        budget,
-        rng,
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
-
-
 @dataclass(frozen=True)
 class ParticleSwarmParameters:
     """Global-best PSO settings; the defaults are Clerc's constriction-equivalent constants."""
@@ -227,25 +149,12 @@ DEFAULT_PARTICLE_SWARM_PARAMETERS = ParticleSwarmParameters()
 
 
 @dataclass(frozen=True)
-class ParticleSwarm:
+class ParticleSwarm(ParametrisedAlgorithm):
     """Global-best PSO (see the module docstring)."""
 
     params: ParticleSwarmParameters = DEFAULT_PARTICLE_SWARM_PARAMETERS
 
-    @property
-    def name(self) -> str:
-        return "pso"
-
-    @property
-    def population_size(self) -> int:
-        return self.params.population_size
-
-    @property
-    def max_generations(self) -> int | None:
-        return self.params.n_generations
-
-    def settings(self) -> Mapping[str, object]:
-        return asdict(self.params)
+    name: ClassVar[str] = "pso"
 
     def start(
         self, positions: FloatArray, costs: FloatArray, rng: np.random.Generator
@@ -301,27 +210,3 @@ class ParticleSwarm:
                 "personal_best_costs": np.where(improved, costs, personal_best_costs),
             },
         )
-
-
-def run_pso(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    rng: np.random.Generator,
-    params: ParticleSwarmParameters = DEFAULT_PARTICLE_SWARM_PARAMETERS,
-    *,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    checkpoint_every: int = 10,
-    progress: ProgressCallback | None = None,
-) -> OptimisationResult:
-    """Minimise ``objective`` over [0, 1]^dim with PSO, at most ``budget`` evaluations."""
-    return run_population_algorithm(
-        ParticleSwarm(params),
-        objective,
-        dim,
-        budget,
-        rng,
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )

@@ -29,12 +29,13 @@ random step.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from services.tuner.evaluation import EvaluationBudget, FloatArray
-from services.tuner.generational import Population, replace_evaluated
+from services.tuner.generational import ParametrisedAlgorithm, Population, replace_evaluated
 
 
 @dataclass(frozen=True)
@@ -115,30 +116,12 @@ def firefly_move(
 
 
 @dataclass(frozen=True)
-class FireflyAlgorithm:
+class FireflyAlgorithm(ParametrisedAlgorithm):
     """Plain FA: every generation moves all fireflies (eqs. 1-4) and evaluates them."""
 
     params: FireflyParameters = FireflyParameters()
 
-    @property
-    def name(self) -> str:
-        return "fa"
-
-    @property
-    def population_size(self) -> int:
-        return self.params.population_size
-
-    @property
-    def max_generations(self) -> int | None:
-        return self.params.n_generations
-
-    def settings(self) -> Mapping[str, object]:
-        return asdict(self.params)
-
-    def start(
-        self, positions: FloatArray, costs: FloatArray, rng: np.random.Generator
-    ) -> Population:
-        return Population(positions, costs)
+    name: ClassVar[str] = "fa"
 
     def step(
         self,

@@ -26,9 +26,9 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -89,6 +89,42 @@ class PopulationAlgorithm(Protocol):
     ) -> Population:
         """Produce generation ``generation + 1`` from ``population``, evaluating one batch."""
         ...
+
+
+class AlgorithmParameters(Protocol):
+    """What the generation loop reads from an algorithm's parameter dataclass."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+    @property
+    def population_size(self) -> int: ...
+
+    @property
+    def n_generations(self) -> int | None: ...
+
+
+class ParametrisedAlgorithm:
+    """The parts of :class:`PopulationAlgorithm` that follow from one frozen parameter
+    dataclass ``params``: P, the generation limit, the checkpoint settings, and an initial
+    population state of positions and costs alone (PSO overrides :meth:`start`)."""
+
+    params: AlgorithmParameters
+
+    @property
+    def population_size(self) -> int:
+        return self.params.population_size
+
+    @property
+    def max_generations(self) -> int | None:
+        return self.params.n_generations
+
+    def settings(self) -> Mapping[str, object]:
+        return asdict(self.params)
+
+    def start(
+        self, positions: FloatArray, costs: FloatArray, rng: np.random.Generator
+    ) -> Population:
+        return Population(positions, costs)
 
 
 def replace_evaluated(

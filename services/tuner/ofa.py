@@ -12,26 +12,30 @@ One OFA generation:
 The FA parameters are the ones a Taguchi design (Table 1,
 :mod:`services.tuner.taguchi`) picks; :func:`make_ofa_trial` is the trial
 function such a design runs, and :func:`ofa_parameters_from_design` turns the
-design's choice into parameters for :func:`run_ofa`.
+design's choice into parameters for :class:`OrthogonalFireflyAlgorithm`.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
-from services.tuner.evaluation import EvaluationBudget, FloatArray, Objective, ProgressCallback
+from services.tuner.evaluation import EvaluationBudget, Objective
 from services.tuner.firefly import FireflyParameters, firefly_move, firefly_parameters_from_settings
-from services.tuner.generational import Population, replace_evaluated, run_population_algorithm
+from services.tuner.generational import (
+    ParametrisedAlgorithm,
+    Population,
+    replace_evaluated,
+    run_population_algorithm,
+)
 from services.tuner.rank_mutation import (
     DEFAULT_RANK_MUTATION,
     RankMutationParameters,
     rank_mutate,
 )
-from services.tuner.result import OptimisationResult
 from services.tuner.taguchi import TaguchiResult, TrialFunction
 
 OFA_FIREFLY_PARAMETERS = FireflyParameters(
@@ -56,35 +60,25 @@ class OFAParameters:
     firefly: FireflyParameters = OFA_FIREFLY_PARAMETERS
     mutation: RankMutationParameters = DEFAULT_RANK_MUTATION
 
+    @property
+    def population_size(self) -> int:
+        return self.firefly.population_size
+
+    @property
+    def n_generations(self) -> int | None:
+        return self.firefly.n_generations
+
 
 DEFAULT_OFA_PARAMETERS = OFAParameters()
 
 
 @dataclass(frozen=True)
-class OrthogonalFireflyAlgorithm:
+class OrthogonalFireflyAlgorithm(ParametrisedAlgorithm):
     """The OFA generation step (move, mutate, evaluate) for the shared generation loop."""
 
     params: OFAParameters = DEFAULT_OFA_PARAMETERS
 
-    @property
-    def name(self) -> str:
-        return "ofa"
-
-    @property
-    def population_size(self) -> int:
-        return self.params.firefly.population_size
-
-    @property
-    def max_generations(self) -> int | None:
-        return self.params.firefly.n_generations
-
-    def settings(self) -> Mapping[str, object]:
-        return asdict(self.params)
-
-    def start(
-        self, positions: FloatArray, costs: FloatArray, rng: np.random.Generator
-    ) -> Population:
-        return Population(positions, costs)
+    name: ClassVar[str] = "ofa"
 
     def step(
         self,
@@ -103,30 +97,6 @@ class OrthogonalFireflyAlgorithm:
         return Population(positions, costs)
 
 
-def run_ofa(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    rng: np.random.Generator,
-    params: OFAParameters = DEFAULT_OFA_PARAMETERS,
-    *,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    checkpoint_every: int = 10,
-    progress: ProgressCallback | None = None,
-) -> OptimisationResult:
-    """Minimise ``objective`` over [0, 1]^dim with the OFA in at most ``budget`` evaluations."""
-    return run_population_algorithm(
-        OrthogonalFireflyAlgorithm(params),
-        objective,
-        dim,
-        budget,
-        rng,
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
-
-
 def make_ofa_trial(
     objective: Objective,
     dim: int,
@@ -142,8 +112,12 @@ def make_ofa_trial(
     def run_trial(settings: Mapping[str, float], seed: int) -> float:
         firefly = firefly_parameters_from_settings(settings)
         budget = firefly.population_size * (int(settings["n_generations"]) + 1)
-        result = run_ofa(
-            objective, dim, budget, np.random.default_rng(seed), OFAParameters(firefly, mutation)
+        result = run_population_algorithm(
+            OrthogonalFireflyAlgorithm(OFAParameters(firefly, mutation)),
+            objective,
+            dim,
+            budget,
+            np.random.default_rng(seed),
         )
         return result.best_cost
 

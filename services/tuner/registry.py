@@ -13,9 +13,11 @@ from typing import Protocol
 
 import numpy as np
 
-from services.tuner.baselines import run_fa, run_ga, run_pso
+from services.tuner.baselines import GeneticAlgorithm, ParticleSwarm
 from services.tuner.evaluation import Objective, ProgressCallback
-from services.tuner.ofa import run_ofa
+from services.tuner.firefly import FireflyAlgorithm
+from services.tuner.generational import PopulationAlgorithm, run_population_algorithm
+from services.tuner.ofa import OrthogonalFireflyAlgorithm
 from services.tuner.result import OptimisationResult
 
 
@@ -35,97 +37,36 @@ class AlgorithmRunner(Protocol):
     ) -> OptimisationResult: ...
 
 
-def run_ofa_from_seed(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    seed: int,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    progress: ProgressCallback | None = None,
-    *,
-    checkpoint_every: int = 10,
-) -> OptimisationResult:
-    """OFA with its default (Taguchi-chosen) parameters."""
-    return run_ofa(
-        objective,
-        dim,
-        budget,
-        np.random.default_rng(seed),
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
+def seeded_runner(algorithm: PopulationAlgorithm) -> AlgorithmRunner:
+    """``algorithm`` run by :func:`run_population_algorithm` from an integer seed."""
 
+    def run(
+        objective: Objective,
+        dim: int,
+        budget: int,
+        seed: int,
+        checkpoint_path: str | os.PathLike[str] | None = None,
+        progress: ProgressCallback | None = None,
+        *,
+        checkpoint_every: int = 10,
+    ) -> OptimisationResult:
+        return run_population_algorithm(
+            algorithm,
+            objective,
+            dim,
+            budget,
+            np.random.default_rng(seed),
+            checkpoint_path=checkpoint_path,
+            checkpoint_every=checkpoint_every,
+            progress=progress,
+        )
 
-def run_fa_from_seed(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    seed: int,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    progress: ProgressCallback | None = None,
-    *,
-    checkpoint_every: int = 10,
-) -> OptimisationResult:
-    """Plain FA with its default parameters, no mutation."""
-    return run_fa(
-        objective,
-        dim,
-        budget,
-        np.random.default_rng(seed),
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
-
-
-def run_ga_from_seed(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    seed: int,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    progress: ProgressCallback | None = None,
-    *,
-    checkpoint_every: int = 10,
-) -> OptimisationResult:
-    """Real-coded GA with its default parameters."""
-    return run_ga(
-        objective,
-        dim,
-        budget,
-        np.random.default_rng(seed),
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
-
-
-def run_pso_from_seed(
-    objective: Objective,
-    dim: int,
-    budget: int,
-    seed: int,
-    checkpoint_path: str | os.PathLike[str] | None = None,
-    progress: ProgressCallback | None = None,
-    *,
-    checkpoint_every: int = 10,
-) -> OptimisationResult:
-    """Global-best PSO with its default parameters."""
-    return run_pso(
-        objective,
-        dim,
-        budget,
-        np.random.default_rng(seed),
-        checkpoint_path=checkpoint_path,
-        checkpoint_every=checkpoint_every,
-        progress=progress,
-    )
+    return run
 
 
 ALGORITHMS: dict[str, AlgorithmRunner] = {
-    "ofa": run_ofa_from_seed,
-    "fa": run_fa_from_seed,
-    "ga": run_ga_from_seed,
-    "pso": run_pso_from_seed,
+    "ofa": seeded_runner(OrthogonalFireflyAlgorithm()),  # Taguchi-chosen FA + eq. 5
+    "fa": seeded_runner(FireflyAlgorithm()),  # untuned FA, no mutation
+    "ga": seeded_runner(GeneticAlgorithm()),
+    "pso": seeded_runner(ParticleSwarm()),
 }

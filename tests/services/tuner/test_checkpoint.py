@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from services.tuner import checkpoint as checkpoint_module
-from services.tuner.baselines import run_pso
+from services.tuner.baselines import ParticleSwarm
 from services.tuner.benchmark_functions import rastrigin
 from services.tuner.checkpoint import CheckpointMismatchError, load_checkpoint
 from services.tuner.evaluation import ProgressCallback
+from services.tuner.generational import run_population_algorithm
 from services.tuner.registry import ALGORITHMS
 
 ALGORITHM_NAMES = sorted(ALGORITHMS)
@@ -101,7 +102,8 @@ def test_checkpoint_holds_the_generator_state_of_its_generation(tmp_path: Path) 
             raise SimulatedKillError
 
     with pytest.raises(SimulatedKillError):
-        run_pso(
+        run_population_algorithm(
+            ParticleSwarm(),
             rastrigin,
             3,
             1000,

@@ -3,14 +3,15 @@
 import numpy as np
 import pytest
 
-from services.tuner.baselines import run_fa
 from services.tuner.benchmark_functions import sphere
 from services.tuner.firefly import (
+    FireflyAlgorithm,
     FireflyParameters,
     attract_toward_brighter,
     firefly_move,
     random_step_scale,
 )
+from services.tuner.generational import run_population_algorithm
 
 
 def test_random_step_cools_geometrically_eq4() -> None:
@@ -86,7 +87,9 @@ def test_fa_converges_on_the_5d_sphere() -> None:
     """
     budget = 3000
     params = FireflyParameters(alpha0=0.2, beta0=0.5, gamma=1.0, delta=0.95, population_size=20)
-    result = run_fa(sphere, 5, budget, np.random.default_rng(0), params)
+    result = run_population_algorithm(
+        FireflyAlgorithm(params), sphere, 5, budget, np.random.default_rng(0)
+    )
     random_search_best = sphere(np.random.default_rng(0).random((budget, 5))).min()
     assert random_search_best > 0.1
     assert result.best_cost < 1e-5
@@ -95,6 +98,8 @@ def test_fa_converges_on_the_5d_sphere() -> None:
 
 def test_fa_stops_after_n_generations() -> None:
     params = FireflyParameters(population_size=10, n_generations=7)
-    result = run_fa(sphere, 3, 10_000, np.random.default_rng(1), params)
+    result = run_population_algorithm(
+        FireflyAlgorithm(params), sphere, 3, 10_000, np.random.default_rng(1)
+    )
     assert result.n_generations == 7
     assert result.n_evaluations == 10 * 8
