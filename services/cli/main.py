@@ -344,6 +344,16 @@ def build_parser() -> argparse.ArgumentParser:
             "$ZENOH_CONNECT)",
         )
 
+    def admin_query_options(p: argparse.ArgumentParser) -> None:
+        swarm_options(p)
+        p.add_argument(
+            "--timeout",
+            type=float,
+            default=3.0,
+            metavar="S",
+            help="seconds to wait for the answer (default: 3)",
+        )
+
     up = sub.add_parser(
         "up",
         help="start router, world and one process per robot, and supervise them",
@@ -398,8 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
         cmd = sub.add_parser(name, help=text, description=text + ".")
         if name != "status":
             cmd.add_argument("robot", help="robot name, e.g. robot2")
-        swarm_options(cmd)
-        cmd.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for an answer")
+        admin_query_options(cmd)
         cmd.set_defaults(handler=handler)
 
     net = sub.add_parser(
@@ -413,11 +422,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     net.add_argument("action", choices=["get", "set"])
     net.add_argument("--profile", help="a named profile")
-    net.add_argument("--latency-ms", type=float)
-    net.add_argument("--jitter-ms", type=float)
+    net.add_argument("--latency-ms", type=float, metavar="MS", help="mean one-way delay, ms")
+    net.add_argument(
+        "--jitter-ms", type=float, metavar="MS", help="delay spread: uniform in mean +- this, ms"
+    )
     net.add_argument("--loss", type=float, help="loss probability, 0..1")
-    swarm_options(net)
-    net.add_argument("--timeout", type=float, default=3.0)
+    admin_query_options(net)
     net.set_defaults(handler=_cmd_net)
 
     regs = sub.add_parser(
@@ -432,8 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
     regs.add_argument("robot")
     regs.add_argument("address", nargs="?", type=_int_literal, metavar="ADDR")
     regs.add_argument("value", nargs="?", type=_int_literal, metavar="VALUE")
-    swarm_options(regs)
-    regs.add_argument("--timeout", type=float, default=3.0)
+    admin_query_options(regs)
     regs.set_defaults(handler=_cmd_regs)
 
     params = sub.add_parser(
@@ -448,8 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     params.add_argument("robot")
     params.add_argument("file", nargs="?", metavar="FILE")
-    swarm_options(params)
-    params.add_argument("--timeout", type=float, default=3.0)
+    admin_query_options(params)
     params.set_defaults(handler=_cmd_params)
 
     world = sub.add_parser(
