@@ -23,7 +23,6 @@ import operator
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import SupportsIndex
 
 from robot_firmware.fpga.address_map import WINDOW_BYTES
 from robot_firmware.fpga.registers import WORD_BYTES, WORD_MASK, Peripheral, Register
@@ -243,7 +242,16 @@ class RecordingBus(Bus):
 
 
 def _as_int(x: object) -> int | None:
-    return operator.index(x) if isinstance(x, SupportsIndex) else None
+    """``x`` as an int if it is an integer of any kind (int, bool, NumPy integer), else None.
+
+    ``operator.index`` decides: a runtime protocol check would be several times slower on
+    the path every bus access takes."""
+    if type(x) is int:
+        return x
+    try:
+        return operator.index(x)  # type: ignore[arg-type]
+    except TypeError:
+        return None
 
 
 def _is_power_of_ten(n: int) -> bool:

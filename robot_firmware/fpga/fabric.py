@@ -19,7 +19,6 @@ from __future__ import annotations
 import operator
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import SupportsIndex
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -150,12 +149,14 @@ class Fabric:
         """
         if len(encoder_counts) != N_WHEELS:
             raise ValueError(f"{len(encoder_counts)} encoder counts for {N_WHEELS} wheels")
-        if not all(isinstance(c, SupportsIndex) for c in encoder_counts):
-            raise ValueError(f"encoder counts must be integers: {list(encoder_counts)!r}")
+        try:
+            counts_per_wheel = [operator.index(c) for c in encoder_counts]
+        except TypeError:
+            raise ValueError(f"encoder counts must be integers: {list(encoder_counts)!r}") from None
         if len(sonar_echo_times_s) != len(self.sonar):
             raise ValueError(f"{len(sonar_echo_times_s)} echo times for {len(self.sonar)} sonars")
-        for qep, counts in zip(self.qep, encoder_counts, strict=True):
-            qep.hw_set_encoder_counts(operator.index(counts))
+        for qep, counts in zip(self.qep, counts_per_wheel, strict=True):
+            qep.hw_set_encoder_counts(counts)
         for sonar, echo_time_s in zip(self.sonar, sonar_echo_times_s, strict=True):
             sonar.hw_set_echo_time(echo_time_s)
         if fix is not None:
