@@ -89,20 +89,17 @@ class Field:
     msb: int
     lsb: int
     doc: str
+    width: int = dataclasses.field(init=False, repr=False, compare=False)
+    mask: int = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.name:
             raise ValueError("a field needs a name")
         if not 0 <= self.lsb <= self.msb < WORD_BITS:
             raise ValueError(f"field {self.name}: bit range [{self.msb}:{self.lsb}] is invalid")
-
-    @property
-    def width(self) -> int:
-        return self.msb - self.lsb + 1
-
-    @property
-    def mask(self) -> int:
-        return ((1 << self.width) - 1) << self.lsb
+        width = self.msb - self.lsb + 1
+        object.__setattr__(self, "width", width)
+        object.__setattr__(self, "mask", ((1 << width) - 1) << self.lsb)
 
     @property
     def bits(self) -> str:
