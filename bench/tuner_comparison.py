@@ -18,7 +18,7 @@ the median curves to a PNG. Runs are spread over ``--jobs`` processes. Every fin
 appended at once to ``<json>.runs.jsonl``; started again with the same settings, the script
 takes the runs found there and runs only the rest, so a killed benchmark loses at most the
 runs in progress (``--fresh`` ignores them). The defaults (10 seeds, 600 evaluations of 30 s,
-all cores) take about an hour on an idle 2-core machine.
+all cores) take about 25 minutes on an idle 2-core machine.
 
     .venv/bin/python bench/tuner_comparison.py [--seeds 10] [--budget 600] [--duration 30]
         [--algos ofa,fa,ga,pso] [--jobs N] [--json runs/bench/tuner_comparison.json]
