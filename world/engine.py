@@ -60,6 +60,14 @@ class RadioCounters:
         return float(np.percentile(np.asarray(self.latencies_ns), q)) / 1e6
 
 
+def echo_times_from_gaps(gaps_m: FloatArray) -> list[tuple[float | None, ...]]:
+    """Round-trip echo time per robot and transducer for gaps (n, beams); None = no echo."""
+    return [
+        tuple(None if not np.isfinite(g) else 2.0 * float(g) / SPEED_OF_SOUND_MPS for g in row)
+        for row in gaps_m
+    ]
+
+
 class WorldEngine:
     """Ground truth, sensors and radio of one scenario's robots."""
 
@@ -85,7 +93,9 @@ class WorldEngine:
         self.metrics_period_ns = round(scenario.controller_params().control_period_s * NS_PER_S)
         self._next_fix_ns = 0
         self._next_sonar_ns = 0
-        self._sonar_gap_m = np.full((self.robot_count, len(self.beam_angles_rad)), np.inf)
+        self._sonar_echo_times_s = echo_times_from_gaps(
+            np.full((self.robot_count, len(self.beam_angles_rad)), np.inf)
+        )
         self._fixes: list[FixSample | None] = [None] * self.robot_count
         self._next_metrics_ns = 0
         self._contacts: BoolArray | None = None
@@ -114,7 +124,7 @@ class WorldEngine:
                 [self.obstacle_radii_m, np.full(n, self.body_params.body_radius_m)]
             )
             valid = np.concatenate([np.ones((n, m), dtype=bool), ~np.eye(n, dtype=bool)], axis=1)
-            self._sonar_gap_m = sonar_gaps(
+            gaps_m = sonar_gaps(
                 self.bodies.pose,
                 self.beam_angles_rad,
                 np.broadcast_to(targets, (n, m + n, 2)),
@@ -124,6 +134,7 @@ class WorldEngine:
                 self.rng.standard_normal((n, len(self.beam_angles_rad))),
                 self.sonar_params,
             )
+            self._sonar_echo_times_s = echo_times_from_gaps(gaps_m)
         fresh_fix = self.t_ns >= self._next_fix_ns
         if fresh_fix:
             self._next_fix_ns += self.fix_period_ns
@@ -145,14 +156,10 @@ class WorldEngine:
         )
         messages = []
         for i in range(self.robot_count):
-            echoes = tuple(
-                None if not np.isfinite(g) else 2.0 * float(g) / SPEED_OF_SOUND_MPS
-                for g in self._sonar_gap_m[i]
-            )
             messages.append(
                 SenseMessage(
                     encoder_counts=tuple(int(c) for c in counts[i]),
-                    sonar_echo_times_s=echoes,
+                    sonar_echo_times_s=self._sonar_echo_times_s[i],
                     fix=self._fixes[i] if fresh_fix else None,
                     t_ns=self.t_ns,
                 )
