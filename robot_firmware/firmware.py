@@ -32,6 +32,7 @@ from robot_firmware.control.controller import (
     ControlOutputs,
     RobotRole,
     control_step,
+    sonar_beam_points,
 )
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from robot_firmware.control.trajectories import Trajectory
@@ -115,6 +116,15 @@ class Firmware:
         self.frames_sent = 0
         self.last_state: ControllerState | None = None
         self.last_inputs: ControlInputs | None = None
+
+    def sonar_echo_points_m(self) -> list[list[float]]:
+        """Where the last sonar sweep puts echoes, in the world, seen from the estimated pose:
+        one [x, y] per transducer that heard one (all echoes, not only those the APF uses)."""
+        heard = np.isfinite(self.sonar_gap_m)
+        points = sonar_beam_points(
+            self.state.estimator.pose, np.where(heard, self.sonar_gap_m, 0.0), self.mission.params
+        )
+        return [[float(x), float(y)] for x, y in points[heard]]
 
     def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
         """Use another fuzzy scheduler from the next tick on (call between ticks)."""

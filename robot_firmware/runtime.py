@@ -363,6 +363,10 @@ class RobotProcess:
             "bus_errors": self.drivers.bus_errors,
             "malformed_sense": self.malformed_sense,
             "timing": self.timing.as_dict(self._jitter_p99_ms),
+            "sonar_range_m": [
+                float(g) if np.isfinite(g) else None for g in self.firmware.sonar_gap_m
+            ],
+            "sonar_echoes_m": self.firmware.sonar_echo_points_m(),
         }
         if report is not None:
             o = report.outputs

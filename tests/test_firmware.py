@@ -104,3 +104,40 @@ def test_watchdog_cuts_the_motors_when_the_loop_stops() -> None:
     actuation = fabric.hw_read_actuation()
     assert actuation.watchdog_expired
     assert actuation.duty == (0.0, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.slow
+def test_reported_sonar_echoes_lie_on_the_surfaces_the_sonar_heard() -> None:
+    """The echo points the firmware reports (telemetry, dashboard rays) are on real surfaces.
+
+    An echo is placed on its transducer's beam axis at the measured gap from the rim, seen from
+    the estimated pose. One that came from the edge of the +-15 deg cone is then up to
+    2 sin(7.5 deg) times its reach from where it was heard; 5 cm more covers the motion of both
+    robots in the 50 ms between sweeps, the sonar noise and the pose estimate's error.
+    """
+    scenario = load_scenario(PAPER)
+    swarm = FirmwareSwarm(scenario, KEY)
+    centres, radii = scenario.obstacle_arrays()
+    params = scenario.controller_params()
+    half_chord = 2.0 * np.sin(scenario.sensors.sonar.beam_half_width_rad / 2.0)
+    off_surface_m: list[float] = []
+    allowed_m: list[float] = []
+    for step in range(2000):
+        swarm.step()
+        if step < 300 or step % 5:
+            continue  # skip the start-up, sample every 50 ms
+        poses = swarm.world.bodies.pose
+        for i, robot in enumerate(swarm.robots):
+            gaps = robot.firmware.sonar_gap_m
+            points = robot.firmware.sonar_echo_points_m()
+            assert len(points) == int(np.sum(np.isfinite(gaps)))
+            for (x, y), gap in zip(points, gaps[np.isfinite(gaps)], strict=True):
+                to_obstacles = np.abs(np.hypot(*(centres - (x, y)).T) - radii)
+                peers = np.delete(poses, i, axis=0)[:, :2]
+                to_peers = np.abs(np.hypot(*(peers - (x, y)).T) - params.body_radius_m)
+                off_surface_m.append(float(min(to_obstacles.min(), to_peers.min())))
+                allowed_m.append(half_chord * (params.body_radius_m + float(gap)) + 0.05)
+    off = np.array(off_surface_m)
+    assert off.size > 500, "the robots should hear the obstacle and each other"
+    assert np.all(off <= np.array(allowed_m)), np.max(off - np.array(allowed_m))
+    assert np.mean(off < 0.02) > 0.5  # most echoes come from near the beam axis

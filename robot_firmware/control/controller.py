@@ -177,6 +177,22 @@ class ControlOutputs:
     active: BoolArray
 
 
+def sonar_beam_points(
+    pose: FloatArray, sonar_range_m: FloatArray, params: ControllerParams
+) -> FloatArray:
+    """World points (..., S, 2) at ``sonar_range_m`` (finite, from the body's rim) along each
+    transducer's beam of a robot at ``pose`` (..., 3): where its sonar ring says echoes are."""
+    beam_world = pose[..., 2:3] + np.asarray(params.sonar_beam_angles_rad)
+    reach = params.body_radius_m + sonar_range_m
+    return np.stack(
+        (
+            pose[..., None, 0] + reach * np.cos(beam_world),
+            pose[..., None, 1] + reach * np.sin(beam_world),
+        ),
+        axis=-1,
+    )
+
+
 def sonar_echo_points(
     pose: FloatArray,
     sonar_range_m: FloatArray,
@@ -189,16 +205,8 @@ def sonar_echo_points(
     Echoes within the APF influence distance count; an echo that lands on a peer whose position
     is known from the radio is left to the robot-robot term.
     """
-    beam_world = pose[..., 2:3] + np.asarray(params.sonar_beam_angles_rad)
     echo = np.isfinite(sonar_range_m) & (sonar_range_m <= params.apf_influence_m)
-    reach = params.body_radius_m + np.where(echo, sonar_range_m, 0.0)
-    points = np.stack(
-        (
-            pose[..., None, 0] + reach * np.cos(beam_world),
-            pose[..., None, 1] + reach * np.sin(beam_world),
-        ),
-        axis=-1,
-    )
+    points = sonar_beam_points(pose, np.where(echo, sonar_range_m, 0.0), params)
     to_peer = points[..., :, None, :] - peer_pose[..., None, :, :2]
     near_peer = np.hypot(to_peer[..., 0], to_peer[..., 1]) < (
         params.body_radius_m + params.sonar_peer_margin_m
