@@ -12,7 +12,9 @@ Clock modes:
 * lockstep: per control period the world sends every robot its sense message with the tick
   number and waits until every *live* robot (liveliness token present) has answered that tick,
   then advances the physics by one period.  A robot that disappears leaves the barrier at once
-  and is braked; one that comes back is waited for again from its next answer on.
+  and is braked; one that comes back is waited for again from its next answer on.  With
+  `max_speed` set, a tick is not started before its simulated time divided by `max_speed` has
+  passed on the wall clock (a deterministic run slowed down to watch; results unchanged).
 
 At the end (duration reached, SIGTERM or Ctrl-C) and every few seconds meanwhile the world
 writes `summary.json` with the schema of `swarm sim`, plus radio counters and the robots'
@@ -36,7 +38,15 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PositiveFloat,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
 
 from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.keys import SwarmKeys
@@ -69,6 +79,47 @@ class WorldConfig(BaseModel):
     summary_every_s: PositiveFloat = 5.0
     radio_profile: str | None = None
     start_timeout_s: PositiveFloat = 30.0
+    max_speed: PositiveFloat | None = None
+    """Lockstep only: at most this many simulated seconds per wall second (None: as fast as
+    the robots answer)."""
+
+    @field_validator("max_speed")
+    @classmethod
+    def _max_speed_needs_lockstep(cls, value: float | None, info: ValidationInfo) -> float | None:
+        if value is not None and not info.data.get("lockstep", False):
+            raise ValueError("applies to lockstep runs only (real time runs at 1)")
+        return value
+
+
+class LockstepPacer:
+    """Holds lockstep ticks back so simulated time runs at most `max_speed` times the wall clock.
+
+    A run that falls behind (slow robots) carries on from where it is at the same pace; it does
+    not run faster to catch up. `wait_until` is called with a timeout in seconds and returns
+    early (True) when the run is being stopped."""
+
+    def __init__(
+        self,
+        max_speed: float | None,
+        wait_until: Callable[[float], bool],
+        clock_s: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.max_speed = max_speed
+        self._wait = wait_until
+        self._clock_s = clock_s
+        self._start_s: float | None = None
+
+    def before_tick(self, sim_t_ns: int) -> None:
+        """Wait until the tick that starts at `sim_t_ns` is due (the first one starts the clock)."""
+        if self.max_speed is None:
+            return
+        now_s = self._clock_s()
+        wall_offset_s = sim_t_ns / NS_PER_S / self.max_speed
+        due_s = now_s if self._start_s is None else self._start_s + wall_offset_s
+        if due_s > now_s:
+            self._wait(due_s - now_s)
+        else:  # behind (or the first tick): start the pace from here, never catch up faster
+            self._start_s = now_s - wall_offset_s
 
 
 class WorldProcess:
@@ -273,7 +324,9 @@ class WorldProcess:
         # Robots that joined before time started are listening: they owe tick 0 already.
         self.first_tick_owed[:] = 0
         next_summary = time.monotonic() + self.config.summary_every_s
+        pacer = LockstepPacer(self.config.max_speed, self.stop.wait)
         while not self.stop.is_set() and (end is None or self.tick < end):
+            pacer.before_tick(self.engine.t_ns)
             self._drain()
             self._publish_sense(lockstep=True, delivered=self._deliver_radio(session))
             clock_pub.put(

@@ -29,6 +29,10 @@ class UsageError(Exception):
 
 
 DEFAULT_SCENARIO = "configs/scenarios/paper.yaml"
+MAX_SPEED_HELP = (
+    "with --lockstep: run at most X simulated seconds per wall second, e.g. 1 to watch a "
+    "deterministic run at real speed (default: as fast as the robots answer)"
+)
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
@@ -99,6 +103,7 @@ def _cmd_world(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             out_dir=Path(args.out) if args.out else None,
             radio_profile=args.radio,
+            max_speed=args.max_speed,
         )
     except ValidationError as exc:
         raise UsageError(_validation_message("world", exc)) from None
@@ -132,6 +137,10 @@ def _cmd_robot(args: argparse.Namespace) -> int:
 def _cmd_up(args: argparse.Namespace) -> int:
     from services.launcher.launcher import Launcher, LaunchPlan
 
+    if args.max_speed is not None and not args.lockstep:
+        raise UsageError("--max-speed applies to --lockstep runs only (real time runs at 1)")
+    if args.max_speed is not None and not args.max_speed > 0:
+        raise UsageError(f"--max-speed must be positive, got {args.max_speed}")
     scenario_path = Path(args.scenario)
     scenario = load_scenario(scenario_path)
     out_dir = Path(args.out)
@@ -143,6 +152,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
         swarm=args.swarm,
         endpoint=endpoint,
         lockstep=args.lockstep,
+        max_speed=args.max_speed,
         duration_s=args.duration,
         radio_profile=args.radio,
         dashboard=not args.no_dashboard,
@@ -382,6 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the world waits for every live robot each tick (deterministic)",
     )
+    up.add_argument("--max-speed", type=float, metavar="X", help=MAX_SPEED_HELP)
     up.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     up.add_argument(
         "--web-port", type=int, default=9090, help="dashboard web viewer port (default: 9090)"
@@ -467,6 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     world.add_argument("--scenario", metavar="FILE", help="scenario YAML ($SWARM_SCENARIO)")
     world.add_argument("--lockstep", action="store_true")
+    world.add_argument("--max-speed", type=float, metavar="X", help=MAX_SPEED_HELP)
     world.add_argument("--duration", type=float, metavar="S")
     world.add_argument("--out", metavar="DIR", help="where to write summary.json")
     world.add_argument("--radio", metavar="PROFILE", help="override the scenario's radio profile")

@@ -74,6 +74,7 @@ class LaunchPlan:
     swarm: str = "lab"
     endpoint: str = "tcp/127.0.0.1:7447"
     lockstep: bool = False
+    max_speed: float | None = None
     duration_s: float | None = None
     radio_profile: str | None = None
     dashboard: bool = True
@@ -114,6 +115,8 @@ class Launcher:
         ]
         if plan.lockstep:
             world.append("--lockstep")
+        if plan.max_speed is not None:
+            world += ["--max-speed", str(plan.max_speed)]
         if plan.duration_s is not None:
             world += ["--duration", str(plan.duration_s)]
         if plan.radio_profile is not None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.integration.conftest import LiveSwarm, run_swarm
+from tests.integration.conftest import LiveSwarm, run_swarm, swarm_cli
 
 pytestmark = pytest.mark.slow
 
@@ -33,12 +33,22 @@ def test_lockstep_swarm_agrees_with_the_batch_simulator(tmp_path: Path) -> None:
 
 
 def test_lockstep_with_the_same_seed_is_bit_for_bit_repeatable(tmp_path: Path) -> None:
+    """Also when the second run is paced (--max-speed): pacing only delays ticks."""
     first = run_swarm(tmp_path / "a", "--lockstep", "--duration", "8")
-    run_swarm(tmp_path / "b", "--lockstep", "--duration", "8")
+    run_swarm(tmp_path / "b", "--lockstep", "--max-speed", "4", "--duration", "8")
     assert (tmp_path / "a" / "summary.json").read_bytes() == (
         tmp_path / "b" / "summary.json"
     ).read_bytes()
     assert first["radio"]["delivered"] > 0
+
+
+def test_max_speed_without_lockstep_is_a_usage_error(tmp_path: Path) -> None:
+    for command in (["up", "--out", str(tmp_path / "up")], ["world", "--duration", "1"]):
+        refused = swarm_cli(*command, "--max-speed", "2")
+        assert refused.returncode == 2, refused.stderr
+        assert "max_speed" in refused.stderr.replace("-", "_")
+        assert "lockstep" in refused.stderr and "Traceback" not in refused.stderr
+    assert not (tmp_path / "up").exists()
 
 
 def test_real_time_swarm_holds_formation_and_reports_loop_timing(tmp_path: Path) -> None:
