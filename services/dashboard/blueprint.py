@@ -1,7 +1,8 @@
 """The dashboard's default Rerun layout, readable at a glance.
 
-Left: the swarm map (true poses, heading arrows, trails, desired rings, the leader's reference
-path and reference point, obstacles with their APF influence ring) above a short event log.
+Left: the swarm map (true poses, heading arrows, trails, desired rings, sonar echoes, the
+leader's reference path and reference point, obstacles with their APF influence ring) above a
+short event log.
 Right, top to bottom: the leader's tracking error (paper Fig. 12), the followers' formation
 errors (Fig. 13), the PID gains K_P / K_I / K_D in tabs as the fuzzy scheduler moves them, and
 the radio's delivery ratio and latency. Every view runs on the `sim_time` timeline.
@@ -23,7 +24,10 @@ def default_blueprint(map_bounds_m: tuple[float, float, float, float]) -> rrb.Bl
     swarm_map = rrb.Spatial2DView(
         origin="/",
         contents=[f"+ /{entities.MAP}/**"],
-        name="Swarm map: true poses, trails, desired rings (leader labelled, down = grey)",
+        name=(
+            "Swarm map: true poses, trails, desired rings, sonar echoes "
+            "(leader labelled, down = grey)"
+        ),
         visual_bounds=rrb.VisualBounds2D(x_range=[x_min, x_max], y_range=[-y_max, -y_min]),
     )
     gains = rrb.Tabs(

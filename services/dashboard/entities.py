@@ -10,6 +10,9 @@ map/robots/<robot>               one robot on the map: body disc (Points2D: robo
                                  ring where it should be (Ellipses2D: trajectory or slot, eq. 17)
                                  and its trail, the last seconds of true poses (LineStrips2D)
 map/robots/<robot>/estimate      the firmware's own pose estimate (telemetry)
+map/robots/<robot>/sonar         the last sonar sweep (telemetry): a ray from the estimated
+                                 position to each echo (LineStrips2D) and the echo (Points2D);
+                                 empty when no transducer hears anything
 errors/leader                    leader tracking error ‖(x, y) − (x_d, y_d)‖ in m and
                                  |θ − θ_d| in rad (paper Fig. 12)
 errors/formation                 each follower's formation error ‖p_i − p_i,desired‖ in m (Fig. 13)
@@ -59,6 +62,10 @@ def robot(name: str) -> str:
 
 def estimate(name: str) -> str:
     return f"{robot(name)}/estimate"
+
+
+def sonar(name: str) -> str:
+    return f"{robot(name)}/sonar"
 
 
 def gain_group(gain: Gain) -> str:

@@ -68,6 +68,9 @@ class TelemetryMessage(_Lenient):
     kd: tuple[float, float, float] | None = None
     """Gains of the redundant PID law (eq. 14) per axis x, y, theta, as the fuzzy scheduler
     (Table 2) sets them; absent before the first control tick."""
+    sonar_echoes_m: tuple[tuple[float, float], ...] | None = None
+    """Where the robot's last sonar sweep puts echoes, [x_m, y_m] in the world seen from its
+    estimated pose, one per transducer that heard one; absent from older producers."""
 
 
 def parse_truth(payload: bytes) -> TruthMessage | None:

@@ -54,6 +54,7 @@ _DRAW_INFLUENCE = 1.0
 _DRAW_OBSTACLE = 2.0
 _DRAW_PATH = 3.0
 _DRAW_TRAIL = 4.0
+_DRAW_SONAR = 4.5
 _DRAW_DESIRED = 5.0
 _DRAW_BODY = 6.0
 _DRAW_HEADING = 7.0
@@ -409,7 +410,8 @@ class SwarmScene:
         return records
 
     def on_telemetry(self, telemetry: TelemetryMessage) -> Update | None:
-        """The robot's own pose estimate and its scheduled PID gains at telemetry.t_s."""
+        """The robot's own pose estimate, its sonar sweep and its scheduled PID gains at
+        telemetry.t_s."""
         name = telemetry.robot
         if name not in self.colours:
             self.unknown_robots.add(name)
@@ -429,11 +431,32 @@ class SwarmScene:
                     ),
                 )
             )
+            if telemetry.sonar_echoes_m is not None:
+                records.append(self._sonar_record(name, (x, y), telemetry.sonar_echoes_m))
         for gain in entities.GAIN_NAMES:
             values: Sequence[float] | None = getattr(telemetry, gain)
             if values is not None:
                 records.append(record(entities.gain(gain, name), rr.Scalars(list(values))))
         return Update(telemetry.t_s, records) if records else None
+
+    def _sonar_record(
+        self,
+        name: str,
+        origin_m: tuple[float, float],
+        echoes_m: Sequence[tuple[float, float]],
+    ) -> LogRecord:
+        """Rays from the robot's estimated position to its echoes; empty layers clear old rays."""
+        colour = shade(self.colours[name], 1.25)
+        return record(
+            entities.sonar(name),
+            rr.LineStrips2D(
+                [[origin_m, echo] for echo in echoes_m],
+                colors=[colour],
+                radii=[0.006],
+                draw_order=_DRAW_SONAR,
+            ),
+            rr.Points2D(list(echoes_m), radii=[0.02], colors=[colour], draw_order=_DRAW_SONAR),
+        )
 
     def on_liveliness(self, role: str, name: str, alive: bool) -> Update:
         """A process joined or left (its liveliness token); stamped at the newest sim time."""

@@ -2,8 +2,8 @@
 
 One lockstep run of the paper scenario is watched by two dashboards: A runs to the end and is
 stopped with SIGTERM; B is killed with SIGKILL mid-run and started again on the same directory.
-A second run of the same swarm without dashboards must end with the same summary.json, byte
-for byte: the dashboards only listen.
+A second run of the same swarm without dashboards (and not paced by `--max-speed`) must end
+with the same summary.json, byte for byte: the dashboards only listen.
 """
 
 from __future__ import annotations
@@ -60,7 +60,10 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RecordedR
         started.append(full.child)
         cut = start_dashboard("dashboard-b", base / "b", port, logs)
         started.append(cut.child)
-        swarm = start_swarm(base / "swarm", port, "--lockstep", "--duration", str(DURATION_S))
+        # Paced at real speed so the restarted dashboard has time to join before the end.
+        swarm = start_swarm(
+            base / "swarm", port, "--lockstep", "--max-speed", "1", "--duration", str(DURATION_S)
+        )
         started.append(swarm)
         swarm.wait_for_line("swarm lab:", timeout_s=60)
         partial = base / "b" / "dashboard.rrd"
@@ -167,6 +170,18 @@ def test_radio_delivery_ratio_and_map_layers_are_recorded(
     for path in ("/map", "/map/obstacles", "/map/obstacles/influence", "/map/reference_path"):
         assert full_recording[path].static, path
     assert _in_run(full_recording["/map/reference"].sim_times_s)
+
+
+def test_sonar_sweeps_of_every_robot_are_recorded(
+    full_recording: dict[str, EntityData],
+) -> None:
+    for name in ROBOTS:
+        sweeps = full_recording[f"/map/robots/{name}/sonar"].values("LineStrips2D:strips")
+        assert _in_run([t for t, _ in sweeps]), name
+        assert len(sweeps) >= 0.9 * 20 * DURATION_S  # one sweep per telemetry message
+        heard = [rays for _, rays in sweeps if rays]
+        assert heard, f"{name} never heard an echo (the robots are within sonar range)"
+        assert all(len(ray) == 2 for rays in heard for ray in rays)  # estimate -> echo
 
 
 def test_recording_cut_by_sigkill_stays_readable(recorded_run: RecordedRun) -> None:

@@ -157,6 +157,38 @@ def test_gains_come_from_telemetry_at_its_own_time(scenario: Scenario) -> None:
     assert scene.unknown_robots == {"robot9"}
 
 
+def test_sonar_echoes_are_rays_from_the_estimated_position(scenario: Scenario) -> None:
+    scene = SwarmScene(scenario)
+    payload = {
+        "robot": "robot1",
+        "t_s": 7.5,
+        "estimate": [1.0, 2.0, 0.5],
+        "sonar_echoes_m": [[1.5, 2.0], [1.0, 2.75]],
+    }
+    telemetry = parse_telemetry(json.dumps(payload).encode())
+    assert telemetry is not None
+    sweep = _record(scene.on_telemetry(telemetry), entities.sonar("robot1"))
+    rays = _archetype(sweep, rr.LineStrips2D).strips.as_arrow_array().to_pylist()
+    assert [[list(p) for p in ray] for ray in rays] == [
+        [[1.0, 2.0], [1.5, 2.0]],
+        [[1.0, 2.0], [1.0, 2.75]],
+    ]
+    echoes = _archetype(sweep, rr.Points2D).positions.as_arrow_array().to_pylist()
+    assert [list(p) for p in echoes] == [[1.5, 2.0], [1.0, 2.75]]
+
+    silent = parse_telemetry(json.dumps({**payload, "sonar_echoes_m": []}).encode())
+    assert silent is not None
+    cleared = _record(scene.on_telemetry(silent), entities.sonar("robot1"))
+    assert _archetype(cleared, rr.LineStrips2D).strips.as_arrow_array().to_pylist() == []
+
+    older = parse_telemetry(
+        json.dumps({k: v for k, v in payload.items() if k != "sonar_echoes_m"}).encode()
+    )
+    assert older is not None
+    update = scene.on_telemetry(older)
+    assert update is not None and entities.sonar("robot1") not in update.paths()
+
+
 def test_processes_joining_and_leaving_are_events_at_the_newest_sim_time(
     scenario: Scenario,
 ) -> None:
