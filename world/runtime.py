@@ -324,7 +324,7 @@ class WorldProcess:
         # Robots that joined before time started are listening: they owe tick 0 already.
         self.first_tick_owed[:] = 0
         next_summary = time.monotonic() + self.config.summary_every_s
-        pacer = LockstepPacer(self.config.max_speed, self.stop.wait)
+        pacer = LockstepPacer(self.config.max_speed, self._wait_serving_queries)
         while not self.stop.is_set() and (end is None or self.tick < end):
             pacer.before_tick(self.engine.t_ns)
             self._drain()
@@ -476,6 +476,14 @@ class WorldProcess:
         if self.config.out_dir is not None:
             path = self.config.out_dir / "summary.json"
             write_json_atomically(path, self.summary(), durable=final)
+
+    def _wait_serving_queries(self, timeout_s: float) -> bool:
+        """Sleep up to `timeout_s`, answering admin queries meanwhile; True if stopping."""
+        end_s = time.monotonic() + timeout_s
+        while (left_s := end_s - time.monotonic()) > 0 and not self.stop.is_set():
+            self.stop.wait(min(left_s, 0.05))
+            self._serve_queries()
+        return self.stop.is_set()
 
     def _serve_queries(self) -> None:
         self._admin.serve({"net": self._net_request, "status": lambda _body: self._status()})

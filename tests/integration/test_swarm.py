@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import time
 from pathlib import Path
 
 import pytest
@@ -153,6 +154,23 @@ def test_lockstep_does_not_hang_on_a_dead_robot(live_swarm: LiveSwarm) -> None:
     live_swarm.wait_for(lambda: "robot3" in world()["live"], timeout_s=90)
     rejoined = world()["tick"]
     live_swarm.wait_for(lambda: world()["tick"] > rejoined + 100, timeout_s=90)
+
+
+@pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "0.002")], indirect=True)
+def test_paced_lockstep_keeps_its_pace_and_answers_queries_between_ticks(
+    live_swarm: LiveSwarm,
+) -> None:
+    """At 0.002 simulated s per wall s a 10 ms tick is due every 5 s of wall time; the world
+    still answers admin queries (3 s time-out) while it waits."""
+    first = live_swarm.wait_for(lambda: (s := _world_status(live_swarm)) and s["tick"] > 0 and s)
+    started_s = time.monotonic()
+    live_swarm.wait_for(lambda: _world_status(live_swarm)["tick"] > first["tick"])
+    for _ in range(5):
+        status = _world_status(live_swarm)
+        assert status["clock_mode"] == "lockstep"
+    elapsed_s = time.monotonic() - started_s
+    ticks = _world_status(live_swarm)["tick"] - first["tick"]
+    assert 1 <= ticks <= elapsed_s / 5.0 + 2, (ticks, elapsed_s)
 
 
 def test_fuzzy_parameters_are_replaced_on_a_live_robot(
