@@ -24,11 +24,13 @@ script says how to install them and leaves their columns out.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import statistics
 import time
 from collections.abc import Callable
 from importlib.util import find_spec
+from pathlib import Path
 
 import numpy as np
 from machine import machine_lines
@@ -37,6 +39,9 @@ from scipy.stats import rankdata
 from services.tuner.benchmark_functions import BENCHMARK_FUNCTIONS
 from services.tuner.evaluation import FloatArray
 from services.tuner.registry import ALGORITHMS
+
+PYSWARMS_LOG_DIR = Path(__file__).resolve().parents[1] / "runs" / "bench"
+"""pyswarms writes report.log into the working directory; it is kept here instead."""
 
 POPULATION = 40
 Runner = Callable[[Callable[[FloatArray], FloatArray], int, int, int], float]
@@ -77,15 +82,17 @@ def niapy_firefly(
 def pyswarms_global_best(
     function: Callable[[FloatArray], FloatArray], dim: int, budget: int, seed: int
 ) -> float:
-    import pyswarms
-
     np.random.seed(seed)  # noqa: NPY002 - pyswarms draws from NumPy's global generator
-    optimiser = pyswarms.single.GlobalBestPSO(
-        n_particles=POPULATION,
-        dimensions=dim,
-        options={"c1": 1.49618, "c2": 1.49618, "w": 0.7298},
-        bounds=(np.zeros(dim), np.ones(dim)),
-    )
+    PYSWARMS_LOG_DIR.mkdir(parents=True, exist_ok=True)
+    with contextlib.chdir(PYSWARMS_LOG_DIR):  # its import and its optimisers open report.log
+        import pyswarms
+
+        optimiser = pyswarms.single.GlobalBestPSO(
+            n_particles=POPULATION,
+            dimensions=dim,
+            options={"c1": 1.49618, "c2": 1.49618, "w": 0.7298},
+            bounds=(np.zeros(dim), np.ones(dim)),
+        )
     best_cost, _ = optimiser.optimize(function, iters=budget // POPULATION, verbose=False)
     return float(best_cost)
 
