@@ -10,27 +10,16 @@ is the median of several repetitions; the machine and the date are printed with 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import os
-import platform
 import statistics
 import time
 from pathlib import Path
+
+from machine import machine_lines
 
 from services.sim.batch import run_batch
 from world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def _time_batch(scenario_path: Path, batch: int, sim_s: float, repeats: int) -> float:
@@ -53,8 +42,9 @@ def main() -> None:
     args = parser.parse_args()
     robots = len(load_scenario(args.scenario).robots)
 
-    print(f"# batch simulator throughput, {dt.date.today().isoformat()}")
-    print(f"# machine: {_cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    print("# batch simulator throughput")
+    for line in machine_lines():
+        print(line)
     print(f"# scenario: {args.scenario.name} ({robots} robots), {args.sim_seconds} s simulated,")
     print(f"# median of {args.repeats} runs; 100 Hz control, exact-equivalent physics")
     print()

@@ -11,14 +11,12 @@ machine and date printed with the table.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
+from machine import machine_lines
 
 from robot_firmware.net.frames import key_from_secret
 from services.sim.firmware_swarm import FirmwareSwarm
@@ -72,11 +70,9 @@ def main() -> None:
     args = parser.parse_args()
     rows = [_measure(args.ticks) for _ in range(args.repeats)]
     median = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
-    print(f"# firmware control tick, {dt.date.today().isoformat()}")
-    print(
-        f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}"
-    )
+    print("# firmware control tick")
+    for line in machine_lines():
+        print(line)
     print(f"# paper scenario, leader robot, {args.ticks} ticks x {args.repeats} runs (median)")
     print()
     print(f"control_tick median        {median['tick_median_us']:8.1f} us")

@@ -14,10 +14,8 @@ Every figure is the median of several runs; machine and date are printed.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import os
-import platform
 import socket
 import statistics
 import subprocess
@@ -28,6 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from machine import machine_lines
 
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
@@ -191,11 +190,10 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--samples", type=int, default=500)
     args = parser.parse_args()
-    print(f"# networked swarm runtime, {dt.date.today().isoformat()}")
-    print(
-        f"# machine: {platform.machine()}, {os.cpu_count()} cores, Python "
-        f"{platform.python_version()}; paper scenario, 3 robots; median of {args.runs} runs"
-    )
+    print("# networked swarm runtime")
+    for line in machine_lines():
+        print(line)
+    print(f"# paper scenario, 3 robots; median of {args.runs} runs")
     print()
     speedups = [lockstep_speedup(10.0) for _ in range(args.runs)]
     print(
