@@ -91,12 +91,13 @@ def follower_reference(
     """Desired pose (..., 3) and pose rate (..., 3) of a follower in world coordinates.
 
     The position comes from eqs. 17-21 in the follower's frame, mapped back to the world; the
-    heading is the leader's.  The rate is the slot's velocity when the leader moves with
+    heading is the leader's, wrapped to (-π, π] (a peer's heading extrapolated by its rate can
+    pass ±π).  The rate is the slot's velocity when the leader moves with
     `leader_rate`: ṗ_L + θ̇_L × R(θ_L)·(x_DL, y_DL).
     """
     slot_f = follower_slot_in_follower_frame(leader_pose, follower_pose, distance_m, angle_rad)
     slot_w = follower_frame_to_world(slot_f, follower_pose)
-    desired = np.concatenate((slot_w, leader_pose[..., 2:3]), axis=-1)
+    desired = np.concatenate((slot_w, wrap_angle_rad(leader_pose[..., 2:3])), axis=-1)
     arm_x = slot_w[..., 0] - leader_pose[..., 0]
     arm_y = slot_w[..., 1] - leader_pose[..., 1]
     spin = leader_rate[..., 2]

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from robot_firmware.control.angles import wrap_angle_rad
 from robot_firmware.control.formation import (
@@ -71,4 +72,4 @@ def test_follower_reference_velocity_is_slot_velocity() -> None:
     pose0, rate0 = follower_reference(leader, rate, follower, 1.2, 2.5)
     pose1, _ = follower_reference(leader + rate * dt, rate, follower, 1.2, 2.5)
     np.testing.assert_allclose((pose1 - pose0) / dt, rate0, atol=1e-5)
-    assert pose0[2] == leader[2]
+    assert pose0[2] == pytest.approx(leader[2], abs=1e-12)
