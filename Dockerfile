@@ -55,6 +55,7 @@ print("\n".join(tomllib.load(open(sys.argv[1], "rb"))["project"]["dependencies"]
 # The source: the packages that pyproject.toml names, the scenarios and the Zenoh configs.
 COPY pyproject.toml README.md /app/
 COPY robot_firmware /app/robot_firmware
+COPY swarm_config /app/swarm_config
 COPY world /app/world
 COPY services /app/services
 COPY configs /app/configs
@@ -64,7 +65,7 @@ RUN set -eu; \
     rm -rf /app/build /app/*.egg-info; \
     swarm --help > /dev/null; \
     python -c 'import importlib, pkgutil; \
-names = [m.name for p in ("robot_firmware", "world", "services") \
+names = [m.name for p in ("robot_firmware", "swarm_config", "world", "services") \
          for m in pkgutil.walk_packages(importlib.import_module(p).__path__, p + ".") \
          if not m.name.endswith("__main__")]; \
 [importlib.import_module(n) for n in names]; \

@@ -17,7 +17,7 @@ from pathlib import Path
 from machine import machine_lines
 
 from services.sim.batch import run_batch
-from world.scenario import load_scenario
+from swarm_config.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -40,8 +40,8 @@ from services.sim.run import fixed_gain_rule_base
 from services.tuner.fitness import make_objective
 from services.tuner.fuzzy_encoding import DIMENSION, to_parameters
 from services.tuner.registry import ALGORITHMS
-from world.metrics import fitness_snr
-from world.scenario import Scenario, load_scenario
+from swarm_config.scenario import Scenario, load_scenario
+from world.metrics import FormationLayout, fitness_snr
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -80,7 +80,7 @@ def evaluate(
     params = scenario.controller_params().model_copy(update={"fuzzy_enabled": True})
     batch = FuzzyRuleBase.stack([c.rule_base for c in controllers])
     names = scenario.robot_names
-    followers = [names[i] for i in scenario.layout().follower_indices]
+    followers = [names[i] for i in FormationLayout.from_scenario(scenario).follower_indices]
     rows: dict[str, list[dict[str, float]]] = {c.label: [] for c in controllers}
     for seed in seeds:
         result = run_batch(

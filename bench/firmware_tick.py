@@ -20,7 +20,7 @@ from machine import machine_lines
 
 from robot_firmware.net.frames import key_from_secret
 from services.sim.firmware_swarm import FirmwareSwarm
-from world.scenario import load_scenario
+from swarm_config.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 

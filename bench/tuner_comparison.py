@@ -46,7 +46,7 @@ from services.tuner.fuzzy_tuning import (
     write_convergence_figure,
 )
 from services.tuner.registry import ALGORITHMS
-from world.scenario import load_scenario
+from swarm_config.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 

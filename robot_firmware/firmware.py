@@ -19,6 +19,7 @@ socket and reads no clock, so a test can run it against a fabric model in one pr
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -45,6 +46,7 @@ from robot_firmware.net.frames import (
     initial_sequence,
     next_sequence,
 )
+from swarm_config.scenario import Scenario, ScenarioError
 
 FloatArray = NDArray[np.float64]
 NS_PER_S = 1_000_000_000
@@ -66,6 +68,28 @@ class RobotMission:
     broadcast_rate_hz: float = 20.0
     sonar_rate_hz: float = 20.0
     watchdog_timeout_ms: int = 100
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario, name: str, rule_base: FuzzyRuleBase) -> RobotMission:
+        """What robot `name` is told at boot: its index, role, slot, trajectory, parameters."""
+        names = scenario.robot_names
+        if name not in names:
+            raise ScenarioError(f"no robot named {name!r} in scenario {scenario.name!r}: {names}")
+        index = names.index(name)
+        spec = scenario.robots[index]
+        return cls(
+            name=name,
+            index=index,
+            names=names,
+            is_leader=spec.role == "leader",
+            slot_distance_m=spec.slot.distance_m if spec.slot else 0.0,
+            slot_angle_rad=math.radians(spec.slot.angle_deg) if spec.slot else 0.0,
+            trajectory=scenario.trajectory.build(),
+            params=scenario.controller_params(),
+            rule_base=rule_base,
+            broadcast_rate_hz=scenario.radio.broadcast_rate_hz,
+            sonar_rate_hz=scenario.sensors.sonar.rate_hz,
+        )
 
     @property
     def sonar_count(self) -> int:

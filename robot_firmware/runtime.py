@@ -39,7 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationErro
 
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from robot_firmware.drivers import Drivers
-from robot_firmware.firmware import Firmware, TickReport
+from robot_firmware.firmware import Firmware, RobotMission, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
 from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.frames import SWARM_KEY_ENV_VAR, key_from_secret, swarm_hash_from_name
@@ -48,6 +48,7 @@ from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endp
 from robot_firmware.net.wire import ActMessage, SenseMessage, decode_sense, encode_act
 from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
+from swarm_config.scenario import load_rule_base, load_scenario
 
 log = logging.getLogger("swarm.robot")
 
@@ -162,11 +163,9 @@ class RobotProcess:
     """A robot on the swarm: fabric + firmware + Zenoh glue."""
 
     def __init__(self, config: RobotConfig) -> None:
-        from world.scenario import load_rule_base, load_scenario
-
         self.config = config
         scenario = load_scenario(config.scenario)
-        self.mission = scenario.mission(config.name, load_rule_base(scenario))
+        self.mission = RobotMission.from_scenario(scenario, config.name, load_rule_base(scenario))
         self.fuzzy_parameters: FuzzyParameters | None = (
             FuzzyParameters.load(scenario.fuzzy_parameter_file)
             if scenario.fuzzy_parameter_file is not None

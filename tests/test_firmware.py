@@ -15,11 +15,12 @@ from robot_firmware.control.controller import (
 from robot_firmware.control.estimation import EstimatorState
 from robot_firmware.control.pid import PidState
 from robot_firmware.drivers import Drivers
-from robot_firmware.firmware import Firmware
+from robot_firmware.firmware import Firmware, RobotMission
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
 from robot_firmware.net.frames import key_from_secret
 from services.sim.firmware_swarm import FirmwareSwarm
-from world.scenario import load_rule_base, load_scenario
+from swarm_config.scenario import load_rule_base, load_scenario
+from world.metrics import FormationLayout
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -66,7 +67,7 @@ def test_firmware_and_batch_simulator_compute_the_same_wheel_commands() -> None:
     assert all(s is not None for s in states) and all(i is not None for i in inputs)
     batch_state: ControllerState = _stack(states)  # type: ignore[arg-type]
     batch_inputs: ControlInputs = _stack(inputs)  # type: ignore[arg-type]
-    layout = scenario.layout()
+    layout = FormationLayout.from_scenario(scenario)
     n = len(layout.names)
     # Exactly how the batch simulator lays out roles and schedulers for B = 1 run of N robots.
     role = RobotRole(
@@ -88,7 +89,7 @@ def test_watchdog_cuts_the_motors_when_the_loop_stops() -> None:
     rule_base = load_rule_base(scenario)
     fabric = Fabric(FabricConfig(n_sonar=12))
     drivers = Drivers.attach(fabric.bus, 12)
-    firmware = Firmware(scenario.mission("robot2", rule_base), drivers, KEY)
+    firmware = Firmware(RobotMission.from_scenario(scenario, "robot2", rule_base), drivers, KEY)
     firmware.boot(fabric.tick)
     drivers.motors.set_duty((0.5, -0.5, 0.5, -0.5))
     drivers.watchdog.kick()

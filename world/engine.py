@@ -22,10 +22,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from robot_firmware.net.wire import FixSample, SenseMessage
-from world.metrics import MetricsAccumulator
+from swarm_config.radio import LinkProfile
+from swarm_config.scenario import Scenario
+from world.metrics import FormationLayout, MetricsAccumulator
 from world.physics import BodyState, encoder_counts, resolve_contacts, step_bodies
-from world.radio import LinkProfile, draw_links
-from world.scenario import Scenario
+from world.radio import draw_links
 from world.sensors import pose_fix, sonar_gaps
 
 FloatArray = NDArray[np.float64]
@@ -102,7 +103,7 @@ class WorldEngine:
         self.trajectory = scenario.trajectory.build()
         self.metrics = MetricsAccumulator(
             (),
-            scenario.layout(),
+            FormationLayout.from_scenario(scenario),
             self.obstacle_centres_m,
             self.obstacle_radii_m,
             scenario.metrics_config(),

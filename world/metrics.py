@@ -20,28 +20,19 @@ batch simulator produce the same numbers from the same code.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
 from robot_firmware.control.angles import wrap_angle_rad
 from robot_firmware.control.formation import follower_slot_in_world
+from swarm_config.metrics import MetricsConfig
+from swarm_config.scenario import Scenario
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-
-
-class MetricsConfig(BaseModel):
-    """Windows and distances that define the summary figures."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    steady_state_start_s: float = Field(default=20.0, ge=0.0)
-    nominal_hold_s: float = Field(default=3.0, ge=0.0)
-    apf_influence_m: PositiveFloat = 0.4
-    body_radius_m: PositiveFloat = 0.3
 
 
 @dataclass(frozen=True)
@@ -56,6 +47,18 @@ class FormationLayout:
     @property
     def follower_indices(self) -> tuple[int, ...]:
         return tuple(i for i in range(len(self.names)) if i != self.leader_index)
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> FormationLayout:
+        """The scenario's robots in its order; slot angles in radians (eq. 17)."""
+        distance = [r.slot.distance_m if r.slot else 0.0 for r in scenario.robots]
+        angle = [math.radians(r.slot.angle_deg) if r.slot else 0.0 for r in scenario.robots]
+        return cls(
+            names=scenario.robot_names,
+            leader_index=scenario.leader_index,
+            slot_distance_m=np.array(distance),
+            slot_angle_rad=np.array(angle),
+        )
 
 
 def reference_points(

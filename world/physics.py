@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 
 from robot_firmware.control.angles import wrap_angle_rad
 from robot_firmware.control.kinematics import WHEEL_ANGLE_OFFSET_RAD
+from swarm_config.body import BodyParams
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -35,23 +35,6 @@ IntArray = NDArray[np.int64]
 
 _GAUSS_NODES = 0.5 * (1.0 + np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)]))
 _GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
-
-
-class BodyParams(BaseModel):
-    """The paper's robot (L = 0.25 m, r = 0.0508 m) and the hardware effects modelled."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    wheel_base_m: PositiveFloat = 0.25
-    wheel_radius_m: PositiveFloat = 0.0508
-    body_radius_m: PositiveFloat = 0.3
-    motor_time_constant_s: PositiveFloat = 0.05
-    motor_no_load_speed_radps: PositiveFloat = 20.0
-    slip_std: float = Field(default=0.02, ge=0.0, le=0.5)
-    """Standard deviation of the relative rim slip s."""
-    slip_correlation_time_s: PositiveFloat = 0.2
-    encoder_counts_per_rev: PositiveInt = 2048
-    """Counts per wheel revolution after 4x quadrature decoding."""
 
 
 @dataclass(frozen=True)

@@ -52,10 +52,10 @@ from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
 from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, encode_clock, encode_sense
+from swarm_config.radio import PROFILES, LinkProfile
+from swarm_config.scenario import Scenario, load_rule_base
 from world.engine import NS_PER_S, WorldEngine
-from world.metrics import reference_points, sample_errors
-from world.radio import PROFILES, LinkProfile
-from world.scenario import Scenario, load_rule_base
+from world.metrics import FormationLayout, reference_points, sample_errors
 from world.summary import build_summary, write_json_atomically
 
 log = logging.getLogger("swarm.world")
@@ -431,7 +431,9 @@ class WorldProcess:
         reference, _ = engine.trajectory.evaluate(engine.t_s)
         errors = sample_errors(
             engine.bodies.pose,
-            reference_points(engine.bodies.pose, reference, self.scenario.layout()),
+            reference_points(
+                engine.bodies.pose, reference, FormationLayout.from_scenario(self.scenario)
+            ),
         )
         return {
             name: round(float(np.hypot(errors[i, 0], errors[i, 1])), 6)

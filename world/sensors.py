@@ -14,32 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+
+from swarm_config.sensors import PositioningParams, SonarParams
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-
-
-class SonarParams(BaseModel):
-    """The ultrasound ring (the paper's sonar IPs): cone, range limits, noise, update rate."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    beam_half_width_rad: float = Field(default=float(np.deg2rad(15.0)), gt=0.0, lt=np.pi)
-    min_range_m: float = Field(default=0.02, ge=0.0)
-    max_range_m: PositiveFloat = 3.0
-    noise_std_m: float = Field(default=0.005, ge=0.0)
-    rate_hz: PositiveFloat = 20.0
-
-
-class PositioningParams(BaseModel):
-    """The indoor positioning receiver: fix noise and rate (DESIGN.md §4)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    position_noise_std_m: float = Field(default=0.001, ge=0.0)
-    heading_noise_std_rad: float = Field(default=0.002, ge=0.0)
-    rate_hz: PositiveFloat = 20.0
 
 
 def sonar_gaps(

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm_config.scenario import Scenario
 from world.metrics import fitness_snr
-from world.scenario import Scenario
 
 SUMMARY_SCHEMA_VERSION = 1
 

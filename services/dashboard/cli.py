@@ -19,7 +19,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
-from world.scenario import ScenarioError, load_scenario
+from swarm_config.scenario import ScenarioError, load_scenario
 
 EXIT_USAGE = 2
 DEFAULT_SCENARIO = "configs/scenarios/paper.yaml"

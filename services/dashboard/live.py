@@ -40,7 +40,7 @@ from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.messages import parse_telemetry, parse_truth
 from services.dashboard.scene import SwarmScene, Update
-from world.scenario import Scenario
+from swarm_config.scenario import Scenario
 
 log = logging.getLogger("swarm.dashboard")
 

@@ -24,8 +24,8 @@ import rerun as rr
 
 from services.dashboard import entities
 from services.dashboard.messages import TelemetryMessage, TruthMessage
-from world.metrics import reference_points, sample_errors
-from world.scenario import Scenario
+from swarm_config.scenario import Scenario
+from world.metrics import FormationLayout, reference_points, sample_errors
 
 Rgb = tuple[int, int, int]
 
@@ -126,7 +126,7 @@ class SwarmScene:
     ) -> None:
         self.scenario = scenario
         self.names = scenario.robot_names
-        self.layout = scenario.layout()
+        self.layout = FormationLayout.from_scenario(scenario)
         self.leader = self.names[scenario.leader_index]
         self.followers = tuple(self.names[i] for i in self.layout.follower_indices)
         self.colours = {n: ROBOT_COLOURS[i % len(ROBOT_COLOURS)] for i, n in enumerate(self.names)}

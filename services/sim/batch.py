@@ -27,10 +27,11 @@ from robot_firmware.control.controller import (
     control_step,
 )
 from robot_firmware.control.fuzzy import FuzzyRuleBase
-from world.metrics import MetricsAccumulator
+from swarm_config.radio import LinkProfile
+from swarm_config.scenario import Scenario, load_rule_base
+from world.metrics import FormationLayout, MetricsAccumulator
 from world.physics import BodyState, encoder_counts, resolve_contacts, step_bodies
-from world.radio import LinkProfile, draw_links
-from world.scenario import Scenario, load_rule_base
+from world.radio import draw_links
 from world.sensors import pose_fix, sonar_gaps
 
 FloatArray = NDArray[np.float64]
@@ -198,7 +199,7 @@ def run_batch(
     n = len(names)
     b = (batch_size,)
     noise_b = (1,) if shared_noise else b
-    layout = scenario.layout()
+    layout = FormationLayout.from_scenario(scenario)
     role = RobotRole(
         is_leader=np.broadcast_to(np.arange(n) == layout.leader_index, b + (n,)),
         slot_distance_m=layout.slot_distance_m,

@@ -13,8 +13,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
-from world.metrics import reference_points
-from world.scenario import Scenario
+from swarm_config.scenario import Scenario
+from world.metrics import FormationLayout, reference_points
 
 FloatArray = NDArray[np.float64]
 ROBOT_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2")
@@ -33,7 +33,7 @@ def write_figures(
     pose = trace["true_pose"][:, batch_index]
     errors = trace["errors"][:, batch_index]
     names = scenario.robot_names
-    layout = scenario.layout()
+    layout = FormationLayout.from_scenario(scenario)
     lead = layout.leader_index
     paths = [
         _paths_figure(scenario, t, pose, trace["trajectory_pose"], out_dir),
@@ -48,7 +48,7 @@ def _paths_figure(
 ) -> Path:
     fig, ax = plt.subplots(figsize=(7, 7))
     ax.plot(reference[:, 0], reference[:, 1], "k--", lw=1, label="leader reference")
-    layout = scenario.layout()
+    layout = FormationLayout.from_scenario(scenario)
     slots = reference_points(pose, reference, layout)
     for i, name in enumerate(scenario.robot_names):
         role = "leader" if i == layout.leader_index else "follower"

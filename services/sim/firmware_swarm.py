@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from robot_firmware.drivers import Drivers
-from robot_firmware.firmware import Firmware, TickReport
+from robot_firmware.firmware import Firmware, RobotMission, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
 from robot_firmware.pins import apply_sense
+from swarm_config.scenario import Scenario, load_rule_base
 from world.engine import NS_PER_S, WorldEngine
-from world.scenario import Scenario, load_rule_base
 
 
 @dataclass
@@ -53,7 +53,7 @@ class FirmwareSwarm:
         for name in scenario.robot_names:
             fabric = Fabric(FabricConfig(n_sonar=sonar_count))
             drivers = Drivers.attach(fabric.bus, sonar_count)
-            firmware = Firmware(scenario.mission(name, rule_base), drivers, key)
+            firmware = Firmware(RobotMission.from_scenario(scenario, name, rule_base), drivers, key)
             firmware.boot(fabric.tick)
             self.robots.append(FirmwareRobot(fabric, drivers, firmware))
         self.last_reports: list[TickReport] = []

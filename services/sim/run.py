@@ -15,7 +15,7 @@ import numpy as np
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from services.sim.batch import run_batch
 from services.sim.figures import write_figures
-from world.scenario import Scenario, load_rule_base
+from swarm_config.scenario import Scenario, load_rule_base
 from world.summary import build_summary, controller_label, write_json_atomically
 
 

@@ -22,7 +22,7 @@ end up in one figure. The optimiser's state is saved after every generation; ``-
 continues an interrupted run (Ctrl-C included) and gives the result an uninterrupted run would.
 
 A user mistake (unreadable scenario, unknown algorithm, bad number, an existing run without
-``--resume``) raises :class:`~world.scenario.ScenarioError` or :class:`TuneArgumentError`, a
+``--resume``) raises :class:`~swarm_config.scenario.ScenarioError` or :class:`TuneArgumentError`, a
 ValueError that is also a ScenarioError; the ``swarm`` command prints its message and exits
 with status 2.
 """
@@ -59,7 +59,7 @@ from services.tuner.fuzzy_tuning import (
     write_text_atomically,
 )
 from services.tuner.registry import ALGORITHMS
-from world.scenario import ScenarioError, load_scenario
+from swarm_config.scenario import ScenarioError, load_scenario
 
 DEFAULT_ALGORITHM = "ofa"
 DEFAULT_BUDGET = 800

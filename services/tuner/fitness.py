@@ -41,7 +41,8 @@ from numpy.typing import ArrayLike
 from services.sim.batch import run_batch
 from services.tuner.evaluation import FloatArray, IntArray, Objective, snr_fitness_from_cost
 from services.tuner.fuzzy_encoding import decode
-from world.scenario import Scenario
+from swarm_config.scenario import Scenario
+from world.metrics import FormationLayout
 
 DEFAULT_COLLISION_PENALTY = 1.0
 """Cost added per collision, in the units of the eq. 16 error term."""
@@ -157,7 +158,7 @@ def evaluate_fitness(
         + collision_penalty * collisions
     )
     cost = np.where(np.isfinite(cost) & (cost > 0.0), cost, FAILED_CANDIDATE_COST)
-    layout = evaluated.layout()
+    layout = FormationLayout.from_scenario(evaluated)
     follower_names = tuple(layout.names[i] for i in layout.follower_indices)
     formation = np.array(
         [_formation_rms(s, follower_names) for s in result.summaries], dtype=np.float64

@@ -45,7 +45,7 @@ from services.tuner.fitness import DEFAULT_COLLISION_PENALTY, evaluation_scenari
 from services.tuner.fuzzy_encoding import DIMENSION, to_parameters
 from services.tuner.registry import ALGORITHMS
 from services.tuner.result import OptimisationResult
-from world.scenario import Scenario
+from swarm_config.scenario import Scenario
 
 CHECKPOINT_NAME = "checkpoint.npz"
 RUN_SETTINGS_NAME = "run.json"

@@ -16,7 +16,8 @@ from services.dashboard.blueprint import default_blueprint
 from services.dashboard.live import keep_previous_recording, viewer_url
 from services.dashboard.messages import TruthMessage, parse_telemetry, parse_truth
 from services.dashboard.scene import DOWN_COLOUR, ROBOT_COLOURS, LogRecord, SwarmScene, Update
-from world.scenario import Scenario, load_scenario
+from swarm_config.scenario import Scenario, load_scenario
+from world.metrics import FormationLayout
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,7 +37,7 @@ def _truth(
     """Leader on its reference, followers on their slots (plus an offset along x)."""
     reference, _ = scenario.trajectory.build().evaluate(t_s)
     leader = np.asarray(reference, dtype=np.float64)
-    layout = scenario.layout()
+    layout = FormationLayout.from_scenario(scenario)
     robots: dict[str, object] = {}
     for i, name in enumerate(scenario.robot_names):
         if i == layout.leader_index:

@@ -11,7 +11,7 @@ import pytest
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from services.cli.main import main
 from services.sim.batch import run_batch
-from world.scenario import load_scenario
+from swarm_config.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"

@@ -3,9 +3,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from swarm_config.radio import LinkProfile
+from swarm_config.scenario import load_scenario
 from world.engine import NS_PER_S, SPEED_OF_SOUND_MPS, WorldEngine
-from world.radio import LinkProfile
-from world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"

@@ -1,6 +1,7 @@
 import numpy as np
 
-from world.metrics import FormationLayout, MetricsAccumulator, MetricsConfig, fitness_snr
+from swarm_config.metrics import MetricsConfig
+from world.metrics import FormationLayout, MetricsAccumulator, fitness_snr
 
 LAYOUT = FormationLayout(
     names=("robot1", "robot2"),

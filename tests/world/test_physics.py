@@ -1,7 +1,7 @@
 import numpy as np
 
+from swarm_config.body import BodyParams
 from world.physics import (
-    BodyParams,
     BodyState,
     encoder_counts,
     resolve_contacts,

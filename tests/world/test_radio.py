@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from world.radio import PROFILES, BurstLoss, LinkProfile, draw_links
+from swarm_config.radio import PROFILES, BurstLoss, LinkProfile
+from world.radio import draw_links
 
 
 def test_bernoulli_loss_and_delay_match_profile() -> None:

@@ -1,6 +1,7 @@
 import numpy as np
 
-from world.sensors import PositioningParams, SonarParams, pose_fix, sonar_gaps
+from swarm_config.sensors import PositioningParams, SonarParams
+from world.sensors import pose_fix, sonar_gaps
 
 QUIET = SonarParams(noise_std_m=0.0)
 BEAMS = np.deg2rad(np.arange(0, 360, 30.0))

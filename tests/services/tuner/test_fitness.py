@@ -14,8 +14,8 @@ from services.tuner.fitness import (
     make_objective,
 )
 from services.tuner.fuzzy_encoding import DIMENSION, encode_default
+from swarm_config.scenario import Scenario, load_scenario, parse_scenario
 from world.metrics import fitness_snr
-from world.scenario import Scenario, load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"

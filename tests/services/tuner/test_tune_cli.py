@@ -14,7 +14,7 @@ from services.tuner import fuzzy_tuning
 from services.tuner.cli import add_tune_parser, parse_algorithms, run_tune
 from services.tuner.evaluation import FloatArray, Objective
 from services.tuner.fuzzy_tuning import read_convergence_csv
-from world.scenario import Scenario, ScenarioError, load_rule_base, load_scenario
+from swarm_config.scenario import Scenario, ScenarioError, load_rule_base, load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"

@@ -3,7 +3,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from world.scenario import ScenarioError, load_rule_base, load_scenario, parse_scenario
+from swarm_config.scenario import ScenarioError, load_rule_base, load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"

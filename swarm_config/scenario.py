@@ -5,6 +5,10 @@ leader's trajectory, the obstacles, initial poses, the robot's physical paramete
 firmware's control parameters (or a fuzzy parameter file), sensor and radio noise, the seed and
 the duration.  `load_scenario` turns every problem into a `ScenarioError` whose message names
 the file, the field and the problem.
+
+The scenario is read by the world (what to simulate) and by every robot (its mission, built by
+`robot_firmware.firmware.RobotMission.from_scenario`); this module therefore imports only the
+configuration models next to it and the pure control math, never `world` or the firmware.
 """
 
 from __future__ import annotations
@@ -34,11 +38,10 @@ from robot_firmware.control.trajectories import (
     PolylineTrajectory,
     Trajectory,
 )
-from robot_firmware.firmware import RobotMission
-from world.metrics import FormationLayout, MetricsConfig
-from world.physics import BodyParams
-from world.radio import PROFILES, LinkProfile
-from world.sensors import PositioningParams, SonarParams
+from swarm_config.body import BodyParams
+from swarm_config.metrics import MetricsConfig
+from swarm_config.radio import PROFILES, LinkProfile
+from swarm_config.sensors import PositioningParams, SonarParams
 
 FloatArray = NDArray[np.float64]
 
@@ -221,16 +224,6 @@ class Scenario(_Strict):
     def leader_index(self) -> int:
         return next(i for i, r in enumerate(self.robots) if r.role == "leader")
 
-    def layout(self) -> FormationLayout:
-        distance = [r.slot.distance_m if r.slot else 0.0 for r in self.robots]
-        angle = [math.radians(r.slot.angle_deg) if r.slot else 0.0 for r in self.robots]
-        return FormationLayout(
-            names=self.robot_names,
-            leader_index=self.leader_index,
-            slot_distance_m=np.array(distance),
-            slot_angle_rad=np.array(angle),
-        )
-
     def initial_poses(self) -> FloatArray:
         return np.stack([r.initial_pose.as_array() for r in self.robots])
 
@@ -251,27 +244,6 @@ class Scenario(_Strict):
         }
         unset = {k: v for k, v in geometry.items() if k not in self.controller.model_fields_set}
         return self.controller.model_copy(update=unset)
-
-    def mission(self, name: str, rule_base: FuzzyRuleBase) -> RobotMission:
-        """What robot `name` is told at boot: its index, role, slot, trajectory, parameters."""
-        names = self.robot_names
-        if name not in names:
-            raise ScenarioError(f"no robot named {name!r} in scenario {self.name!r}: {names}")
-        index = names.index(name)
-        spec = self.robots[index]
-        return RobotMission(
-            name=name,
-            index=index,
-            names=names,
-            is_leader=spec.role == "leader",
-            slot_distance_m=spec.slot.distance_m if spec.slot else 0.0,
-            slot_angle_rad=math.radians(spec.slot.angle_deg) if spec.slot else 0.0,
-            trajectory=self.trajectory.build(),
-            params=self.controller_params(),
-            rule_base=rule_base,
-            broadcast_rate_hz=self.radio.broadcast_rate_hz,
-            sonar_rate_hz=self.sensors.sonar.rate_hz,
-        )
 
     def metrics_config(self) -> MetricsConfig:
         """Metrics windows from the scenario, distances from the controller and the body."""
