@@ -12,6 +12,7 @@ from robot_firmware.fpga.positioning import PositionFix
 from robot_firmware.fpga.registers import (
     Access,
     Field,
+    FieldHandle,
     Peripheral,
     Register,
     RegisterAccessError,
@@ -30,6 +31,7 @@ __all__ = [
     "Fabric",
     "FabricConfig",
     "Field",
+    "FieldHandle",
     "Peripheral",
     "PositionFix",
     "RecordingBus",

@@ -57,88 +57,103 @@ RESET_SETTING = ClockSetting(mult=2, div=1, c0_div=2, c1_div=2500)
 DEFAULT_FABRIC_CLOCK_HZ = RESET_SETTING.c0_hz
 
 PLL_MULT = Register(
-    "PLL_MULT",
-    0x00,
-    Access.RW,
-    RESET_SETTING.mult,
-    (Field("MULT", 5, 0, "feedback multiplier, 1..63"),),
-    "PLL multiplier, used at the next APPLY.",
+    name="PLL_MULT",
+    offset=0x00,
+    access=Access.RW,
+    reset=RESET_SETTING.mult,
+    fields=(Field(name="MULT", msb=5, lsb=0, doc="feedback multiplier, 1..63"),),
+    doc="PLL multiplier, used at the next APPLY.",
 )
 PLL_DIV = Register(
-    "PLL_DIV",
-    0x04,
-    Access.RW,
-    RESET_SETTING.div,
-    (Field("DIV", 5, 0, "reference divider, 1..63"),),
-    "PLL reference divider, used at the next APPLY.",
+    name="PLL_DIV",
+    offset=0x04,
+    access=Access.RW,
+    reset=RESET_SETTING.div,
+    fields=(Field(name="DIV", msb=5, lsb=0, doc="reference divider, 1..63"),),
+    doc="PLL reference divider, used at the next APPLY.",
 )
 C0_DIV = Register(
-    "C0_DIV",
-    0x08,
-    Access.RW,
-    RESET_SETTING.c0_div,
-    (Field("DIV", 15, 0, "divider of f_pll, 1..65535"),),
-    "Divider of the fabric clock C0, used at the next APPLY.",
+    name="C0_DIV",
+    offset=0x08,
+    access=Access.RW,
+    reset=RESET_SETTING.c0_div,
+    fields=(Field(name="DIV", msb=15, lsb=0, doc="divider of f_pll, 1..65535"),),
+    doc="Divider of the fabric clock C0, used at the next APPLY.",
 )
 C1_DIV = Register(
-    "C1_DIV",
-    0x0C,
-    Access.RW,
-    RESET_SETTING.c1_div,
-    (Field("DIV", 15, 0, "divider of f_pll, 1..65535"),),
-    "Divider of the sonar burst clock C1, used at the next APPLY.",
+    name="C1_DIV",
+    offset=0x0C,
+    access=Access.RW,
+    reset=RESET_SETTING.c1_div,
+    fields=(Field(name="DIV", msb=15, lsb=0, doc="divider of f_pll, 1..65535"),),
+    doc="Divider of the sonar burst clock C1, used at the next APPLY.",
 )
 CTRL = Register(
-    "CTRL",
-    0x10,
-    Access.WO,
-    0,
-    (Field("APPLY", 0, 0, "1 starts a reconfiguration with the four registers above"),),
-    "Reconfiguration trigger.",
+    name="CTRL",
+    offset=0x10,
+    access=Access.WO,
+    reset=0,
+    fields=(
+        Field(
+            name="APPLY",
+            msb=0,
+            lsb=0,
+            doc="1 starts a reconfiguration with the four registers above",
+        ),
+    ),
+    doc="Reconfiguration trigger.",
     affects=("STATUS",),
 )
+CTRL_APPLY = CTRL.field("APPLY")
 STATUS = Register(
-    "STATUS",
-    0x14,
-    Access.RO,
-    0b01,
-    (
-        Field("LOCKED", 0, 0, "the PLL runs at the applied setting"),
-        Field("CFG_ERROR", 1, 1, "the last APPLY was refused; cleared by a valid APPLY"),
+    name="STATUS",
+    offset=0x14,
+    access=Access.RO,
+    reset=0b01,
+    fields=(
+        Field(name="LOCKED", msb=0, lsb=0, doc="the PLL runs at the applied setting"),
+        Field(
+            name="CFG_ERROR",
+            msb=1,
+            lsb=1,
+            doc="the last APPLY was refused; cleared by a valid APPLY",
+        ),
     ),
-    "PLL lock and configuration status.",
+    doc="PLL lock and configuration status.",
 )
+STATUS_LOCKED = STATUS.field("LOCKED")
+STATUS_CFG_ERROR = STATUS.field("CFG_ERROR")
 REF_HZ = Register(
-    "REF_HZ",
-    0x18,
-    Access.RO,
-    REF_CLOCK_HZ,
-    (Field("HZ", 31, 0, "hertz"),),
-    "Reference oscillator frequency.",
+    name="REF_HZ",
+    offset=0x18,
+    access=Access.RO,
+    reset=REF_CLOCK_HZ,
+    fields=(Field(name="HZ", msb=31, lsb=0, doc="hertz"),),
+    doc="Reference oscillator frequency.",
 )
 PLL_HZ = Register(
-    "PLL_HZ",
-    0x1C,
-    Access.RO,
-    RESET_SETTING.pll_hz,
-    (Field("HZ", 31, 0, "hertz"),),
-    "PLL output frequency in use.",
+    name="PLL_HZ",
+    offset=0x1C,
+    access=Access.RO,
+    reset=RESET_SETTING.pll_hz,
+    fields=(Field(name="HZ", msb=31, lsb=0, doc="hertz"),),
+    doc="PLL output frequency in use.",
 )
 C0_HZ = Register(
-    "C0_HZ",
-    0x20,
-    Access.RO,
-    RESET_SETTING.c0_hz,
-    (Field("HZ", 31, 0, "hertz"),),
-    "Fabric clock C0 in use.",
+    name="C0_HZ",
+    offset=0x20,
+    access=Access.RO,
+    reset=RESET_SETTING.c0_hz,
+    fields=(Field(name="HZ", msb=31, lsb=0, doc="hertz"),),
+    doc="Fabric clock C0 in use.",
 )
 C1_HZ = Register(
-    "C1_HZ",
-    0x24,
-    Access.RO,
-    RESET_SETTING.c1_hz,
-    (Field("HZ", 31, 0, "hertz"),),
-    "Sonar burst clock C1 in use.",
+    name="C1_HZ",
+    offset=0x24,
+    access=Access.RO,
+    reset=RESET_SETTING.c1_hz,
+    fields=(Field(name="HZ", msb=31, lsb=0, doc="hertz"),),
+    doc="Sonar burst clock C1 in use.",
 )
 
 REGISTERS = (PLL_MULT, PLL_DIV, C0_DIV, C1_DIV, CTRL, STATUS, REF_HZ, PLL_HZ, C0_HZ, C1_HZ)
@@ -183,7 +198,7 @@ class ClockBlock(Peripheral):
     # -- side effects ----------------------------------------------------------------
 
     def _on_ctrl(self, value: int) -> None:
-        if not CTRL.field("APPLY").extract(value):
+        if not CTRL_APPLY.extract(value):
             return
         setting = ClockSetting(
             mult=self._get(PLL_MULT),
@@ -192,14 +207,14 @@ class ClockBlock(Peripheral):
             c1_div=self._get(C1_DIV),
         )
         if not setting.valid:
-            self._set_bits(STATUS, "CFG_ERROR")
+            self._set_bits(STATUS_CFG_ERROR)
             return
         self._pending = setting
         self._lock_remaining_ns = LOCK_TIME_NS
         self._store(STATUS, 0)
 
     def _publish(self) -> None:
-        self._set_bits(STATUS, "LOCKED")
+        self._set_bits(STATUS_LOCKED)
         self._store(PLL_HZ, self._active.pll_hz)
         self._store(C0_HZ, self._active.c0_hz)
         self._store(C1_HZ, self._active.c1_hz)

@@ -94,42 +94,59 @@ class WindowFilter:
 
 
 MODE = Register(
-    "MODE",
-    0x00,
-    Access.RW,
-    FilterMode.BYPASS,
-    (Field("MODE", 1, 0, "0 bypass, 1 moving average, 2 median, 3 reserved (bypass)"),),
-    "Filter kind.",
+    name="MODE",
+    offset=0x00,
+    access=Access.RW,
+    reset=FilterMode.BYPASS,
+    fields=(
+        Field(
+            name="MODE",
+            msb=1,
+            lsb=0,
+            doc="0 bypass, 1 moving average, 2 median, 3 reserved (bypass)",
+        ),
+    ),
+    doc="Filter kind.",
     affects=("STATUS",),
 )
 WINDOW = Register(
-    "WINDOW",
-    0x04,
-    Access.RW,
-    1,
-    (Field("LENGTH", 4, 0, f"samples, 1..{MAX_WINDOW}; 0 acts as 1, more as {MAX_WINDOW}"),),
-    "Window length.",
+    name="WINDOW",
+    offset=0x04,
+    access=Access.RW,
+    reset=1,
+    fields=(
+        Field(
+            name="LENGTH",
+            msb=4,
+            lsb=0,
+            doc=f"samples, 1..{MAX_WINDOW}; 0 acts as 1, more as {MAX_WINDOW}",
+        ),
+    ),
+    doc="Window length.",
     affects=("STATUS",),
 )
 STATUS = Register(
-    "STATUS",
-    0x08,
-    Access.RO,
-    1,
-    (
-        Field("LENGTH", 4, 0, "window length in effect"),
-        Field("MODE", 9, 8, "mode in effect"),
+    name="STATUS",
+    offset=0x08,
+    access=Access.RO,
+    reset=1,
+    fields=(
+        Field(name="LENGTH", msb=4, lsb=0, doc="window length in effect"),
+        Field(name="MODE", msb=9, lsb=8, doc="mode in effect"),
     ),
-    "Setting in effect.",
+    doc="Setting in effect.",
 )
+STATUS_LENGTH = STATUS.field("LENGTH")
+STATUS_MODE = STATUS.field("MODE")
 FLUSH = Register(
-    "FLUSH",
-    0x0C,
-    Access.WO,
-    0,
-    (Field("FLUSH", 0, 0, "1 empties the history of every channel"),),
-    "History reset.",
+    name="FLUSH",
+    offset=0x0C,
+    access=Access.WO,
+    reset=0,
+    fields=(Field(name="FLUSH", msb=0, lsb=0, doc="1 empties the history of every channel"),),
+    doc="History reset.",
 )
+FLUSH_FLUSH = FLUSH.field("FLUSH")
 
 REGISTERS = (MODE, WINDOW, STATUS, FLUSH)
 
@@ -171,9 +188,9 @@ class DigitalFilter(Peripheral):
         mode = _MODES.get(self._get(MODE), FilterMode.BYPASS)
         window = min(max(self._get(WINDOW), 1), MAX_WINDOW)
         self._filter.configure(mode, window)
-        status = STATUS.field("LENGTH").insert(0, window)
-        self._store(STATUS, STATUS.field("MODE").insert(status, self._filter.mode))
+        status = STATUS_LENGTH.insert(0, window)
+        self._store(STATUS, STATUS_MODE.insert(status, self._filter.mode))
 
     def _on_flush(self, value: int) -> None:
-        if FLUSH.field("FLUSH").extract(value):
+        if FLUSH_FLUSH.extract(value):
             self._filter.flush()

@@ -50,79 +50,89 @@ class PositionFix:
 
 
 X_UM = Register(
-    "X_UM",
-    0x00,
-    Access.RO,
-    0,
-    (Field("UM", 31, 0, "signed micrometres, world frame"),),
-    "x of the last fix.",
+    name="X_UM",
+    offset=0x00,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="UM", msb=31, lsb=0, doc="signed micrometres, world frame"),),
+    doc="x of the last fix.",
 )
 Y_UM = Register(
-    "Y_UM",
-    0x04,
-    Access.RO,
-    0,
-    (Field("UM", 31, 0, "signed micrometres, world frame"),),
-    "y of the last fix.",
+    name="Y_UM",
+    offset=0x04,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="UM", msb=31, lsb=0, doc="signed micrometres, world frame"),),
+    doc="y of the last fix.",
 )
 HEADING_URAD = Register(
-    "HEADING_URAD",
-    0x08,
-    Access.RO,
-    0,
-    (Field("URAD", 31, 0, "signed microradians in (-pi, pi]"),),
-    "Heading of the last fix.",
+    name="HEADING_URAD",
+    offset=0x08,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="URAD", msb=31, lsb=0, doc="signed microradians in (-pi, pi]"),),
+    doc="Heading of the last fix.",
 )
 SEQ = Register(
-    "SEQ",
-    0x0C,
-    Access.RO,
-    0,
-    (Field("SEQ", 31, 0, "increments on every new fix, wraps"),),
-    "Fix sequence counter.",
+    name="SEQ",
+    offset=0x0C,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="SEQ", msb=31, lsb=0, doc="increments on every new fix, wraps"),),
+    doc="Fix sequence counter.",
 )
 STATUS = Register(
-    "STATUS",
-    0x10,
-    Access.RO,
-    0,
-    (Field("VALID", 0, 0, "the last fix is usable: not cut, not stale"),),
-    "Receiver state.",
+    name="STATUS",
+    offset=0x10,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="VALID", msb=0, lsb=0, doc="the last fix is usable: not cut, not stale"),),
+    doc="Receiver state.",
 )
+STATUS_VALID = STATUS.field("VALID")
 EVENTS = Register(
-    "EVENTS",
-    0x14,
-    Access.RC,
-    0,
-    (
-        Field("NEW_FIX", 0, 0, "a new fix arrived"),
-        Field("LOST", 1, 1, "VALID went from 1 to 0"),
+    name="EVENTS",
+    offset=0x14,
+    access=Access.RC,
+    reset=0,
+    fields=(
+        Field(name="NEW_FIX", msb=0, lsb=0, doc="a new fix arrived"),
+        Field(name="LOST", msb=1, lsb=1, doc="VALID went from 1 to 0"),
     ),
-    "Receiver events; a read returns and clears them.",
+    doc="Receiver events; a read returns and clears them.",
 )
+EVENTS_NEW_FIX = EVENTS.field("NEW_FIX")
+EVENTS_LOST = EVENTS.field("LOST")
 AGE_MS = Register(
-    "AGE_MS",
-    0x18,
-    Access.RO,
-    WORD_MASK,
-    (Field("MS", 31, 0, "milliseconds since the last new fix; all ones before the first"),),
-    "Age of the last fix.",
+    name="AGE_MS",
+    offset=0x18,
+    access=Access.RO,
+    reset=WORD_MASK,
+    fields=(
+        Field(
+            name="MS",
+            msb=31,
+            lsb=0,
+            doc="milliseconds since the last new fix; all ones before the first",
+        ),
+    ),
+    doc="Age of the last fix.",
 )
 STALE_MS = Register(
-    "STALE_MS",
-    0x1C,
-    Access.RW,
-    RESET_STALE_MS,
-    (Field("MS", 15, 0, "milliseconds; 0 = never stale"),),
-    "VALID clears when no new fix has come for this long.",
+    name="STALE_MS",
+    offset=0x1C,
+    access=Access.RW,
+    reset=RESET_STALE_MS,
+    fields=(Field(name="MS", msb=15, lsb=0, doc="milliseconds; 0 = never stale"),),
+    doc="VALID clears when no new fix has come for this long.",
 )
 REJECTED = Register(
-    "REJECTED",
-    0x20,
-    Access.RO,
-    0,
-    (Field("COUNT", 31, 0, "fixes dropped for non-finite values, wraps"),),
-    "Number of malformed fixes.",
+    name="REJECTED",
+    offset=0x20,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="COUNT", msb=31, lsb=0, doc="fixes dropped for non-finite values, wraps"),),
+    doc="Number of malformed fixes.",
 )
 
 REGISTERS = (X_UM, Y_UM, HEADING_URAD, SEQ, STATUS, EVENTS, AGE_MS, STALE_MS, REJECTED)
@@ -187,7 +197,7 @@ class PositioningReceiver(Peripheral):
         self._store(SEQ, (self._get(SEQ) + 1) & WORD_MASK)
         self._age_ns = 0
         self._store(AGE_MS, 0)
-        self._set_bits(EVENTS, "NEW_FIX")
+        self._set_bits(EVENTS_NEW_FIX)
         self._set_valid(True)
 
     def hw_cut_fix(self) -> None:
@@ -201,6 +211,6 @@ class PositioningReceiver(Peripheral):
 
     def _set_valid(self, valid: bool) -> None:
         if self._valid and not valid:
-            self._set_bits(EVENTS, "LOST")
+            self._set_bits(EVENTS_LOST)
         self._valid = valid
-        self._store(STATUS, int(valid))
+        self._store(STATUS, STATUS_VALID.insert(0, int(valid)))

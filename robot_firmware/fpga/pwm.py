@@ -19,47 +19,62 @@ from robot_firmware.fpga.registers import Access, Field, Peripheral, Register
 RESET_PERIOD_TICKS = 2_500  # 20 kHz at the 50 MHz reset fabric clock
 
 CTRL = Register(
-    "CTRL",
-    0x00,
-    Access.RW,
-    0,
-    (
-        Field("EN", 0, 0, "1 = output enabled"),
-        Field("DIR", 1, 1, "1 = reverse polarity (negative duty)"),
+    name="CTRL",
+    offset=0x00,
+    access=Access.RW,
+    reset=0,
+    fields=(
+        Field(name="EN", msb=0, lsb=0, doc="1 = output enabled"),
+        Field(name="DIR", msb=1, lsb=1, doc="1 = reverse polarity (negative duty)"),
     ),
-    "Enable and direction.",
+    doc="Enable and direction.",
     affects=("STATUS",),
 )
+CTRL_EN = CTRL.field("EN")
+CTRL_DIR = CTRL.field("DIR")
 PERIOD_TICKS = Register(
-    "PERIOD_TICKS",
-    0x04,
-    Access.RW,
-    RESET_PERIOD_TICKS,
-    (Field("TICKS", 23, 0, "fabric clock cycles; 0 holds the output low"),),
-    "PWM period.",
+    name="PERIOD_TICKS",
+    offset=0x04,
+    access=Access.RW,
+    reset=RESET_PERIOD_TICKS,
+    fields=(Field(name="TICKS", msb=23, lsb=0, doc="fabric clock cycles; 0 holds the output low"),),
+    doc="PWM period.",
     affects=("STATUS",),
 )
+PERIOD_TICKS_TICKS = PERIOD_TICKS.field("TICKS")
 DUTY_TICKS = Register(
-    "DUTY_TICKS",
-    0x08,
-    Access.RW,
-    0,
-    (Field("TICKS", 23, 0, "fabric clock cycles high per period; saturates at the period"),),
-    "High time per period.",
+    name="DUTY_TICKS",
+    offset=0x08,
+    access=Access.RW,
+    reset=0,
+    fields=(
+        Field(
+            name="TICKS",
+            msb=23,
+            lsb=0,
+            doc="fabric clock cycles high per period; saturates at the period",
+        ),
+    ),
+    doc="High time per period.",
     affects=("STATUS",),
 )
 STATUS = Register(
-    "STATUS",
-    0x0C,
-    Access.RO,
-    0,
-    (
-        Field("SAFE_STOP", 0, 0, "the watchdog holds the output low"),
-        Field("SATURATED", 1, 1, "DUTY_TICKS >= PERIOD_TICKS > 0"),
-        Field("ACTIVE", 2, 2, "the output is driving (enabled, not cut, duty > 0)"),
+    name="STATUS",
+    offset=0x0C,
+    access=Access.RO,
+    reset=0,
+    fields=(
+        Field(name="SAFE_STOP", msb=0, lsb=0, doc="the watchdog holds the output low"),
+        Field(name="SATURATED", msb=1, lsb=1, doc="DUTY_TICKS >= PERIOD_TICKS > 0"),
+        Field(
+            name="ACTIVE", msb=2, lsb=2, doc="the output is driving (enabled, not cut, duty > 0)"
+        ),
     ),
-    "Output state.",
+    doc="Output state.",
 )
+STATUS_SAFE_STOP = STATUS.field("SAFE_STOP")
+STATUS_SATURATED = STATUS.field("SATURATED")
+STATUS_ACTIVE = STATUS.field("ACTIVE")
 
 REGISTERS = (CTRL, PERIOD_TICKS, DUTY_TICKS, STATUS)
 
@@ -110,11 +125,11 @@ class Pwm(Peripheral):
 
     def hw_output(self) -> PwmOutput:
         period = self._get(PERIOD_TICKS)
-        enabled = bool(self._get_field(CTRL, "EN")) and not self._safe_stop and period > 0
+        enabled = bool(self._get_field(CTRL_EN)) and not self._safe_stop and period > 0
         if not enabled:
             return PwmOutput(0.0, False, self._clock_hz() / period if period else 0.0)
         magnitude = min(self._get(DUTY_TICKS), period) / period
-        sign = -1.0 if self._get_field(CTRL, "DIR") else 1.0
+        sign = -1.0 if self._get_field(CTRL_DIR) else 1.0
         return PwmOutput(sign * magnitude, True, self._clock_hz() / period)
 
     # -- side effects ----------------------------------------------------------------
@@ -123,9 +138,9 @@ class Pwm(Peripheral):
         del value
         period = self._get(PERIOD_TICKS)
         duty = self._get(DUTY_TICKS)
-        enabled = bool(self._get_field(CTRL, "EN"))
-        status = STATUS.field("SAFE_STOP").insert(0, int(self._safe_stop))
-        status = STATUS.field("SATURATED").insert(status, int(0 < period <= duty))
+        enabled = bool(self._get_field(CTRL_EN))
+        status = STATUS_SAFE_STOP.insert(0, int(self._safe_stop))
+        status = STATUS_SATURATED.insert(status, int(0 < period <= duty))
         active = enabled and not self._safe_stop and period > 0 and duty > 0
-        status = STATUS.field("ACTIVE").insert(status, int(active))
+        status = STATUS_ACTIVE.insert(status, int(active))
         self._store(STATUS, status)

@@ -34,75 +34,89 @@ _COUNT_MIN = -(1 << (WORD_BITS - 1))
 _COUNT_SPAN = 1 << WORD_BITS
 
 COUNT = Register(
-    "COUNT",
-    0x00,
-    Access.RO,
-    0,
-    (Field("COUNT", 31, 0, "signed two's complement, 4 counts per encoder line"),),
-    "Wheel position in 4x-decoded encoder counts.",
+    name="COUNT",
+    offset=0x00,
+    access=Access.RO,
+    reset=0,
+    fields=(
+        Field(
+            name="COUNT", msb=31, lsb=0, doc="signed two's complement, 4 counts per encoder line"
+        ),
+    ),
+    doc="Wheel position in 4x-decoded encoder counts.",
 )
 SPEED = Register(
-    "SPEED",
-    0x04,
-    Access.RO,
-    0,
-    (Field("COUNTS", 31, 0, "signed two's complement"),),
-    "Counts during the last speed window.",
+    name="SPEED",
+    offset=0x04,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="COUNTS", msb=31, lsb=0, doc="signed two's complement"),),
+    doc="Counts during the last speed window.",
 )
 SPEED_FILTERED = Register(
-    "SPEED_FILTERED",
-    0x08,
-    Access.RO,
-    0,
-    (Field("COUNTS", 31, 0, "signed two's complement"),),
-    "SPEED after the speed filter.",
+    name="SPEED_FILTERED",
+    offset=0x08,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="COUNTS", msb=31, lsb=0, doc="signed two's complement"),),
+    doc="SPEED after the speed filter.",
 )
 STATUS = Register(
-    "STATUS",
-    0x0C,
-    Access.RO,
-    0,
-    (Field("DIR", 0, 0, "direction of the last count change: 0 up, 1 down"),),
-    "Decoder state.",
+    name="STATUS",
+    offset=0x0C,
+    access=Access.RO,
+    reset=0,
+    fields=(
+        Field(name="DIR", msb=0, lsb=0, doc="direction of the last count change: 0 up, 1 down"),
+    ),
+    doc="Decoder state.",
 )
+STATUS_DIR = STATUS.field("DIR")
 EVENTS = Register(
-    "EVENTS",
-    0x10,
-    Access.W1C,
-    0,
-    (
-        Field("OVERFLOW", 0, 0, "COUNT wrapped past +/-2^31"),
-        Field("SPEED_NEW", 1, 1, "SPEED was latched"),
+    name="EVENTS",
+    offset=0x10,
+    access=Access.W1C,
+    reset=0,
+    fields=(
+        Field(name="OVERFLOW", msb=0, lsb=0, doc="COUNT wrapped past +/-2^31"),
+        Field(name="SPEED_NEW", msb=1, lsb=1, doc="SPEED was latched"),
     ),
-    "Sticky events; write 1 to clear.",
+    doc="Sticky events; write 1 to clear.",
 )
+EVENTS_OVERFLOW = EVENTS.field("OVERFLOW")
+EVENTS_SPEED_NEW = EVENTS.field("SPEED_NEW")
 CTRL = Register(
-    "CTRL",
-    0x14,
-    Access.RW,
-    0b01,
-    (
-        Field("EN", 0, 0, "1 = count edges; 0 = edges are ignored"),
-        Field("INVERT", 1, 1, "1 = count down for a forward turn"),
+    name="CTRL",
+    offset=0x14,
+    access=Access.RW,
+    reset=0b01,
+    fields=(
+        Field(name="EN", msb=0, lsb=0, doc="1 = count edges; 0 = edges are ignored"),
+        Field(name="INVERT", msb=1, lsb=1, doc="1 = count down for a forward turn"),
     ),
-    "Counter control.",
+    doc="Counter control.",
 )
+CTRL_EN = CTRL.field("EN")
+CTRL_INVERT = CTRL.field("INVERT")
 CLEAR = Register(
-    "CLEAR",
-    0x18,
-    Access.WO,
-    0,
-    (Field("COUNT", 0, 0, "1 sets COUNT to 0"),),
-    "Position clear.",
+    name="CLEAR",
+    offset=0x18,
+    access=Access.WO,
+    reset=0,
+    fields=(Field(name="COUNT", msb=0, lsb=0, doc="1 sets COUNT to 0"),),
+    doc="Position clear.",
     affects=("COUNT",),
 )
+CLEAR_COUNT = CLEAR.field("COUNT")
 WINDOW_TICKS = Register(
-    "WINDOW_TICKS",
-    0x1C,
-    Access.RW,
-    RESET_WINDOW_TICKS,
-    (Field("TICKS", 31, 0, "fabric clock cycles; 0 stops the speed latch"),),
-    "Speed window length.",
+    name="WINDOW_TICKS",
+    offset=0x1C,
+    access=Access.RW,
+    reset=RESET_WINDOW_TICKS,
+    fields=(
+        Field(name="TICKS", msb=31, lsb=0, doc="fabric clock cycles; 0 stops the speed latch"),
+    ),
+    doc="Speed window length.",
 )
 
 REGISTERS = (COUNT, SPEED, SPEED_FILTERED, STATUS, EVENTS, CTRL, CLEAR, WINDOW_TICKS)
@@ -158,7 +172,7 @@ class Qep(Peripheral):
         self._window_counts = 0
         self._store(SPEED, as_unsigned32(speed))
         self._store(SPEED_FILTERED, as_unsigned32(self._speed_filter(speed)))
-        self._set_bits(EVENTS, "SPEED_NEW")
+        self._set_bits(EVENTS_SPEED_NEW)
 
     # -- hardware side ---------------------------------------------------------------
 
@@ -166,19 +180,19 @@ class Qep(Peripheral):
         """The wheel encoder's running 4x edge count, as the pins have seen it so far."""
         edges = operator.index(edges_counts)
         previous, self._last_edges = self._last_edges, edges
-        if previous is None or not self._get_field(CTRL, "EN"):
+        if previous is None or not self._get_field(CTRL_EN):
             return
         delta = edges - previous
-        if self._get_field(CTRL, "INVERT"):
+        if self._get_field(CTRL_INVERT):
             delta = -delta
         if delta == 0:
             return
         self._window_counts += delta
-        self._store(STATUS, STATUS.field("DIR").insert(0, int(delta < 0)))
+        self._store(STATUS, STATUS_DIR.insert(0, int(delta < 0)))
         position = self._count + delta
         wrapped = (position - _COUNT_MIN) % _COUNT_SPAN + _COUNT_MIN
         if wrapped != position:
-            self._set_bits(EVENTS, "OVERFLOW")
+            self._set_bits(EVENTS_OVERFLOW)
         self._count = wrapped
         self._store(COUNT, as_unsigned32(wrapped))
 
@@ -189,6 +203,6 @@ class Qep(Peripheral):
     # -- side effects ----------------------------------------------------------------
 
     def _on_clear(self, value: int) -> None:
-        if CLEAR.field("COUNT").extract(value):
+        if CLEAR_COUNT.extract(value):
             self._count = 0
             self._store(COUNT, 0)

@@ -1,9 +1,24 @@
 """Register declarations as data, and the peripheral base class that gives them meaning.
 
 A peripheral model declares each of its registers once, as a frozen `Register` with
-its offset, access kind, reset value, bit fields and a one-line description. This
-module turns those declarations into behaviour, so a peripheral only adds its side
-effects:
+its offset, access kind, reset value, bit fields and a one-line description, every
+argument by keyword:
+
+    CTRL = Register(
+        name="CTRL",
+        offset=0x00,
+        access=Access.RW,
+        reset=0,
+        fields=(Field(name="EN", msb=0, lsb=0, doc="1 = output enabled"),),
+        doc="Enable.",
+    )
+    CTRL_EN = CTRL.field("EN")
+
+Each field the model or a driver touches gets a `FieldHandle` like `CTRL_EN`, declared
+beside its register: it carries the register's offset and the field's mask and shift,
+so using it costs no lookup, and a misspelt field name fails when the module is
+imported rather than when the field is first used. This module turns the
+declarations into behaviour, so a peripheral only adds its side effects:
 
 * bits not covered by any field are reserved: they always read as zero and writes
   to them are dropped;
@@ -81,9 +96,9 @@ def as_unsigned32(value: int) -> int:
     return value & WORD_MASK
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Field:
-    """A named bit range `[msb:lsb]` inside a register."""
+    """A named bit range `[msb:lsb]` inside a register; read and written through a `FieldHandle`."""
 
     name: str
     msb: int
@@ -105,16 +120,8 @@ class Field:
     def bits(self) -> str:
         return f"[{self.msb}]" if self.msb == self.lsb else f"[{self.msb}:{self.lsb}]"
 
-    def extract(self, word: int) -> int:
-        """This field's value inside `word`."""
-        return (word & self.mask) >> self.lsb
 
-    def insert(self, word: int, value: int) -> int:
-        """`word` with this field replaced by `value` (truncated to the field width)."""
-        return (word & ~self.mask & WORD_MASK) | ((value << self.lsb) & self.mask)
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Register:
     """One 32-bit register: where it is, how it may be accessed, what its bits mean.
 
@@ -149,16 +156,57 @@ class Register:
             raise ValueError(f"register {self.name}: reset {self.reset:#x} sets reserved bits")
         object.__setattr__(self, "mask", mask)
 
-    def field(self, name: str) -> Field:
-        """The field called `name`."""
+    def field(self, name: str) -> FieldHandle:
+        """A handle on the field called `name`; a KeyError names the fields there are.
+
+        Call it once, beside the declaration, and keep the handle.
+        """
         for f in self.fields:
             if f.name == name:
-                return f
-        raise KeyError(f"register {self.name} has no field {name}")
+                return FieldHandle(register=self, field=f)
+        known = ", ".join(f.name for f in self.fields)
+        raise KeyError(f"register {self.name} has no field {name} (fields: {known})")
 
     def with_reset(self, reset: int) -> Register:
         """The same declaration with another reset value (for per-instance constants)."""
         return replace(self, reset=reset)
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class FieldHandle:
+    """One field of one register, resolved once: the register's offset, the field's mask and shift.
+
+    Made by `Register.field`. `extract` and `insert` work on a whole register word;
+    `Peripheral._get_field` and `_set_bits` work on the stored word at `offset`.
+    """
+
+    register: Register
+    field: Field
+    offset: int = dataclasses.field(init=False, repr=False, compare=False)
+    mask: int = dataclasses.field(init=False, repr=False, compare=False)
+    shift: int = dataclasses.field(init=False, repr=False, compare=False)
+    width: int = dataclasses.field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not any(f is self.field for f in self.register.fields):
+            raise ValueError(f"field {self.field.name} is not a field of {self.register.name}")
+        object.__setattr__(self, "offset", self.register.offset)
+        object.__setattr__(self, "mask", self.field.mask)
+        object.__setattr__(self, "shift", self.field.lsb)
+        object.__setattr__(self, "width", self.field.width)
+
+    @property
+    def name(self) -> str:
+        """`REGISTER.FIELD`."""
+        return f"{self.register.name}.{self.field.name}"
+
+    def extract(self, word: int) -> int:
+        """This field's value inside the register word `word`."""
+        return (word & self.mask) >> self.shift
+
+    def insert(self, word: int, value: int) -> int:
+        """`word` with this field replaced by `value` (truncated to the field width)."""
+        return (word & ~self.mask & WORD_MASK) | ((value << self.shift) & self.mask)
 
 
 class RegisterAccessError(ValueError):
@@ -170,7 +218,8 @@ class Peripheral:
 
     Subclasses pass their declarations, register write side effects in
     `self._write_actions` (offset -> callback taking the masked written value), keep
-    their hardware state in attributes and mirror it into registers with `_store`.
+    their hardware state in attributes and mirror it into registers with `_store`
+    (whole words) and `_set_bits` (field handles).
     """
 
     TITLE: ClassVar[str] = "Peripheral"
@@ -265,12 +314,14 @@ class Peripheral:
     def _get(self, reg: Register) -> int:
         return self._values[reg.offset]
 
-    def _get_field(self, reg: Register, name: str) -> int:
-        return reg.field(name).extract(self._values[reg.offset])
+    def _get_field(self, field: FieldHandle) -> int:
+        return field.extract(self._values[field.offset])
 
-    def _set_bits(self, reg: Register, *names: str) -> None:
-        for name in names:
-            self._values[reg.offset] |= reg.field(name).mask
+    def _set_bits(self, *fields: FieldHandle) -> None:
+        """Set every bit of each of `fields` (event flags, status bits)."""
+        values = self._values
+        for field in fields:
+            values[field.offset] |= field.mask
 
 
 def _write_stored(values: dict[int, int], reg: Register, masked: int) -> None:

@@ -37,65 +37,79 @@ def range_m_for_width_ticks(width_ticks: int, fabric_clock_hz: float) -> float:
 
 
 TRIGGER = Register(
-    "TRIGGER",
-    0x00,
-    Access.WO,
-    0,
-    (Field("START", 0, 0, "1 fires a ping; ignored (and MISSED set) while BUSY"),),
-    "Measurement trigger.",
+    name="TRIGGER",
+    offset=0x00,
+    access=Access.WO,
+    reset=0,
+    fields=(
+        Field(
+            name="START", msb=0, lsb=0, doc="1 fires a ping; ignored (and MISSED set) while BUSY"
+        ),
+    ),
+    doc="Measurement trigger.",
     affects=("STATUS", "EVENTS"),
 )
+TRIGGER_START = TRIGGER.field("START")
 STATUS = Register(
-    "STATUS",
-    0x04,
-    Access.RO,
-    0,
-    (Field("BUSY", 0, 0, "a measurement is in progress"),),
-    "Ranger state.",
+    name="STATUS",
+    offset=0x04,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="BUSY", msb=0, lsb=0, doc="a measurement is in progress"),),
+    doc="Ranger state.",
 )
+STATUS_BUSY = STATUS.field("BUSY")
 EVENTS = Register(
-    "EVENTS",
-    0x08,
-    Access.RC,
-    0,
-    (
-        Field("DATA_READY", 0, 0, "a new WIDTH_TICKS was latched"),
-        Field("TIMEOUT", 1, 1, "a measurement ended with no echo within TIMEOUT_TICKS"),
-        Field("MISSED", 2, 2, "a trigger arrived while BUSY"),
+    name="EVENTS",
+    offset=0x08,
+    access=Access.RC,
+    reset=0,
+    fields=(
+        Field(name="DATA_READY", msb=0, lsb=0, doc="a new WIDTH_TICKS was latched"),
+        Field(
+            name="TIMEOUT",
+            msb=1,
+            lsb=1,
+            doc="a measurement ended with no echo within TIMEOUT_TICKS",
+        ),
+        Field(name="MISSED", msb=2, lsb=2, doc="a trigger arrived while BUSY"),
     ),
-    "Measurement events; a read returns and clears them.",
+    doc="Measurement events; a read returns and clears them.",
 )
+EVENTS_DATA_READY = EVENTS.field("DATA_READY")
+EVENTS_TIMEOUT = EVENTS.field("TIMEOUT")
+EVENTS_MISSED = EVENTS.field("MISSED")
 WIDTH_TICKS = Register(
-    "WIDTH_TICKS",
-    0x0C,
-    Access.RO,
-    0,
-    (Field("TICKS", 31, 0, "fabric clock cycles"),),
-    "Echo pulse width of the last measurement.",
+    name="WIDTH_TICKS",
+    offset=0x0C,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="TICKS", msb=31, lsb=0, doc="fabric clock cycles"),),
+    doc="Echo pulse width of the last measurement.",
 )
 FILTERED_TICKS = Register(
-    "FILTERED_TICKS",
-    0x10,
-    Access.RO,
-    0,
-    (Field("TICKS", 31, 0, "fabric clock cycles"),),
-    "WIDTH_TICKS after the sonar filter.",
+    name="FILTERED_TICKS",
+    offset=0x10,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="TICKS", msb=31, lsb=0, doc="fabric clock cycles"),),
+    doc="WIDTH_TICKS after the sonar filter.",
 )
 TIMEOUT_TICKS = Register(
-    "TIMEOUT_TICKS",
-    0x14,
-    Access.RW,
-    RESET_TIMEOUT_TICKS,
-    (Field("TICKS", 31, 0, "fabric clock cycles"),),
-    "Longest echo accepted; a measurement gives up after it.",
+    name="TIMEOUT_TICKS",
+    offset=0x14,
+    access=Access.RW,
+    reset=RESET_TIMEOUT_TICKS,
+    fields=(Field(name="TICKS", msb=31, lsb=0, doc="fabric clock cycles"),),
+    doc="Longest echo accepted; a measurement gives up after it.",
 )
 SAMPLES = Register(
-    "SAMPLES",
-    0x18,
-    Access.RO,
-    0,
-    (Field("COUNT", 31, 0, "echoes latched since reset, wraps"),),
-    "Number of echoes measured.",
+    name="SAMPLES",
+    offset=0x18,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="COUNT", msb=31, lsb=0, doc="echoes latched since reset, wraps"),),
+    doc="Number of echoes measured.",
 )
 
 REGISTERS = (TRIGGER, STATUS, EVENTS, WIDTH_TICKS, FILTERED_TICKS, TIMEOUT_TICKS, SAMPLES)
@@ -143,12 +157,12 @@ class Sonar(Peripheral):
         self._remaining_ns = None
         self._store(STATUS, 0)
         if self._result_ticks is None:
-            self._set_bits(EVENTS, "TIMEOUT")
+            self._set_bits(EVENTS_TIMEOUT)
             return
         self._store(WIDTH_TICKS, self._result_ticks)
         self._store(FILTERED_TICKS, self._width_filter(self._result_ticks))
         self._store(SAMPLES, (self._get(SAMPLES) + 1) & WORD_MASK)
-        self._set_bits(EVENTS, "DATA_READY")
+        self._set_bits(EVENTS_DATA_READY)
 
     # -- hardware side ---------------------------------------------------------------
 
@@ -165,10 +179,10 @@ class Sonar(Peripheral):
     # -- side effects ----------------------------------------------------------------
 
     def _on_trigger(self, value: int) -> None:
-        if not TRIGGER.field("START").extract(value):
+        if not TRIGGER_START.extract(value):
             return
         if self._remaining_ns is not None:
-            self._set_bits(EVENTS, "MISSED")
+            self._set_bits(EVENTS_MISSED)
             return
         clock_hz = max(1, self._clock_hz())
         timeout_ticks = self._get(TIMEOUT_TICKS)
@@ -180,4 +194,4 @@ class Sonar(Peripheral):
         else:
             self._result_ticks = width_ticks
             self._remaining_ns = width_ticks * NS_PER_S // clock_hz
-        self._store(STATUS, STATUS.field("BUSY").mask)
+        self._store(STATUS, STATUS_BUSY.mask)

@@ -10,58 +10,64 @@ from robot_firmware.fpga.address_map import DEFAULT_N_SONAR, N_WHEELS
 from robot_firmware.fpga.registers import Access, Field, Peripheral, Register
 
 SYSTEM_ID = 0x5357_524D  # ASCII "SWRM"
-VERSION_MAJOR = 1
-VERSION_MINOR = 0
-VERSION_PATCH = 0
-BUILD_NUMBER = 1
+IMAGE_VERSION_MAJOR = 1
+IMAGE_VERSION_MINOR = 0
+IMAGE_VERSION_PATCH = 0
+IMAGE_BUILD_NUMBER = 1
 
 ID = Register(
-    "ID",
-    0x00,
-    Access.RO,
-    SYSTEM_ID,
-    (Field("ID", 31, 0, "0x5357524D, ASCII 'SWRM'"),),
-    "Fixed identifier of the swarm-robot FPGA image.",
+    name="ID",
+    offset=0x00,
+    access=Access.RO,
+    reset=SYSTEM_ID,
+    fields=(Field(name="ID", msb=31, lsb=0, doc="0x5357524D, ASCII 'SWRM'"),),
+    doc="Fixed identifier of the swarm-robot FPGA image.",
 )
 VERSION = Register(
-    "VERSION",
-    0x04,
-    Access.RO,
-    (VERSION_MAJOR << 24) | (VERSION_MINOR << 16) | VERSION_PATCH,
-    (
-        Field("MAJOR", 31, 24, "incompatible register map changes"),
-        Field("MINOR", 23, 16, "compatible additions"),
-        Field("PATCH", 15, 0, "fixes with no register map change"),
+    name="VERSION",
+    offset=0x04,
+    access=Access.RO,
+    reset=(IMAGE_VERSION_MAJOR << 24) | (IMAGE_VERSION_MINOR << 16) | IMAGE_VERSION_PATCH,
+    fields=(
+        Field(name="MAJOR", msb=31, lsb=24, doc="incompatible register map changes"),
+        Field(name="MINOR", msb=23, lsb=16, doc="compatible additions"),
+        Field(name="PATCH", msb=15, lsb=0, doc="fixes with no register map change"),
     ),
-    "Register map version.",
+    doc="Register map version.",
 )
+VERSION_MAJOR = VERSION.field("MAJOR")
+VERSION_MINOR = VERSION.field("MINOR")
+VERSION_PATCH = VERSION.field("PATCH")
 BUILD = Register(
-    "BUILD",
-    0x08,
-    Access.RO,
-    BUILD_NUMBER,
-    (Field("BUILD", 31, 0, "build number of the image"),),
-    "Build number, increases with every image.",
+    name="BUILD",
+    offset=0x08,
+    access=Access.RO,
+    reset=IMAGE_BUILD_NUMBER,
+    fields=(Field(name="BUILD", msb=31, lsb=0, doc="build number of the image"),),
+    doc="Build number, increases with every image.",
 )
 CAPS = Register(
-    "CAPS",
-    0x0C,
-    Access.RO,
-    N_WHEELS | (N_WHEELS << 4) | (DEFAULT_N_SONAR << 8),
-    (
-        Field("N_QEP", 3, 0, "encoder interfaces"),
-        Field("N_PWM", 7, 4, "PWM generators"),
-        Field("N_SONAR", 12, 8, "ultrasound rangers (reset shown for 12)"),
+    name="CAPS",
+    offset=0x0C,
+    access=Access.RO,
+    reset=N_WHEELS | (N_WHEELS << 4) | (DEFAULT_N_SONAR << 8),
+    fields=(
+        Field(name="N_QEP", msb=3, lsb=0, doc="encoder interfaces"),
+        Field(name="N_PWM", msb=7, lsb=4, doc="PWM generators"),
+        Field(name="N_SONAR", msb=12, lsb=8, doc="ultrasound rangers (reset shown for 12)"),
     ),
-    "Instance counts of the image.",
+    doc="Instance counts of the image.",
 )
+CAPS_N_QEP = CAPS.field("N_QEP")
+CAPS_N_PWM = CAPS.field("N_PWM")
+CAPS_N_SONAR = CAPS.field("N_SONAR")
 SCRATCH = Register(
-    "SCRATCH",
-    0x10,
-    Access.RW,
-    0,
-    (Field("VALUE", 31, 0, "any value; reads back what was written"),),
-    "Scratch word for bus tests.",
+    name="SCRATCH",
+    offset=0x10,
+    access=Access.RW,
+    reset=0,
+    fields=(Field(name="VALUE", msb=31, lsb=0, doc="any value; reads back what was written"),),
+    doc="Scratch word for bus tests.",
 )
 
 REGISTERS = (ID, VERSION, BUILD, CAPS, SCRATCH)
@@ -84,9 +90,8 @@ class SystemId(Peripheral):
         n_sonar: int = DEFAULT_N_SONAR,
     ) -> None:
         caps = 0
-        for field_name, count in (("N_QEP", n_qep), ("N_PWM", n_pwm), ("N_SONAR", n_sonar)):
-            f = CAPS.field(field_name)
-            if not 0 <= count < (1 << f.width):
-                raise ValueError(f"{field_name}={count} does not fit CAPS")
-            caps = f.insert(caps, count)
+        for handle, count in ((CAPS_N_QEP, n_qep), (CAPS_N_PWM, n_pwm), (CAPS_N_SONAR, n_sonar)):
+            if not 0 <= count < (1 << handle.width):
+                raise ValueError(f"{handle.field.name}={count} does not fit CAPS")
+            caps = handle.insert(caps, count)
         super().__init__(name, tuple(CAPS.with_reset(caps) if r is CAPS else r for r in REGISTERS))

@@ -24,65 +24,80 @@ NS_PER_MS = 1_000_000
 NS_PER_US = 1_000
 
 CTRL = Register(
-    "CTRL",
-    0x00,
-    Access.RW,
-    0b1,
-    (Field("EN", 0, 0, "1 = counting; 0 = stopped, outputs not cut"),),
-    "Watchdog enable.",
+    name="CTRL",
+    offset=0x00,
+    access=Access.RW,
+    reset=0b1,
+    fields=(Field(name="EN", msb=0, lsb=0, doc="1 = counting; 0 = stopped, outputs not cut"),),
+    doc="Watchdog enable.",
     affects=("STATUS", "REMAINING_US"),
 )
+CTRL_EN = CTRL.field("EN")
 TIMEOUT_MS = Register(
-    "TIMEOUT_MS",
-    0x04,
-    Access.RW,
-    RESET_TIMEOUT_MS,
-    (Field("MS", 15, 0, "milliseconds, 0 acts as 1; used from the next kick"),),
-    "Time without a kick before the outputs are cut.",
+    name="TIMEOUT_MS",
+    offset=0x04,
+    access=Access.RW,
+    reset=RESET_TIMEOUT_MS,
+    fields=(
+        Field(name="MS", msb=15, lsb=0, doc="milliseconds, 0 acts as 1; used from the next kick"),
+    ),
+    doc="Time without a kick before the outputs are cut.",
 )
+TIMEOUT_MS_MS = TIMEOUT_MS.field("MS")
 KICK = Register(
-    "KICK",
-    0x08,
-    Access.WO,
-    0,
-    (Field("KEY", 31, 0, f"write 0x{KICK_MAGIC:08X} to kick; other values are counted"),),
-    "Kick: reload the count and end a cut.",
+    name="KICK",
+    offset=0x08,
+    access=Access.WO,
+    reset=0,
+    fields=(
+        Field(
+            name="KEY",
+            msb=31,
+            lsb=0,
+            doc=f"write 0x{KICK_MAGIC:08X} to kick; other values are counted",
+        ),
+    ),
+    doc="Kick: reload the count and end a cut.",
     affects=("STATUS", "REMAINING_US", "BAD_KICK_COUNT"),
 )
 STATUS = Register(
-    "STATUS",
-    0x0C,
-    Access.RO,
-    0b10,
-    (
-        Field("EXPIRED", 0, 0, "the timeout elapsed without a kick; outputs are cut"),
-        Field("ARMED", 1, 1, "enabled and counting down"),
+    name="STATUS",
+    offset=0x0C,
+    access=Access.RO,
+    reset=0b10,
+    fields=(
+        Field(
+            name="EXPIRED", msb=0, lsb=0, doc="the timeout elapsed without a kick; outputs are cut"
+        ),
+        Field(name="ARMED", msb=1, lsb=1, doc="enabled and counting down"),
     ),
-    "Watchdog state.",
+    doc="Watchdog state.",
 )
+STATUS_EXPIRED = STATUS.field("EXPIRED")
+STATUS_ARMED = STATUS.field("ARMED")
 REMAINING_US = Register(
-    "REMAINING_US",
-    0x10,
-    Access.RO,
-    RESET_TIMEOUT_MS * 1000,
-    (Field("US", 31, 0, "microseconds, rounded up"),),
-    "Time left before expiry.",
+    name="REMAINING_US",
+    offset=0x10,
+    access=Access.RO,
+    reset=RESET_TIMEOUT_MS * 1000,
+    fields=(Field(name="US", msb=31, lsb=0, doc="microseconds, rounded up"),),
+    doc="Time left before expiry.",
 )
 EXPIRE_COUNT = Register(
-    "EXPIRE_COUNT",
-    0x14,
-    Access.RO,
-    0,
-    (Field("COUNT", 31, 0, "expiries since reset, wraps"),),
-    "Number of expiries.",
+    name="EXPIRE_COUNT",
+    offset=0x14,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="COUNT", msb=31, lsb=0, doc="expiries since reset, wraps"),),
+    doc="Number of expiries.",
 )
 BAD_KICK_COUNT = Register(
-    "BAD_KICK_COUNT",
-    0x18,
-    Access.RO,
-    0,
-    (Field("COUNT", 31, 0, "kicks with a wrong key since reset, wraps"),),
-    "Number of refused kicks.",
+    name="BAD_KICK_COUNT",
+    offset=0x18,
+    access=Access.RO,
+    reset=0,
+    fields=(Field(name="COUNT", msb=31, lsb=0, doc="kicks with a wrong key since reset, wraps"),),
+    doc="Number of refused kicks.",
 )
 
 REGISTERS = (CTRL, TIMEOUT_MS, KICK, STATUS, REMAINING_US, EXPIRE_COUNT, BAD_KICK_COUNT)
@@ -131,7 +146,7 @@ class Watchdog(Peripheral):
         return max(1, self._get(TIMEOUT_MS)) * NS_PER_MS
 
     def _on_ctrl(self, value: int) -> None:
-        enabled = bool(CTRL.field("EN").extract(value))
+        enabled = bool(CTRL_EN.extract(value))
         if enabled and not self._enabled:
             self._remaining_ns = self._timeout_ns()
         if not enabled:
@@ -155,7 +170,7 @@ class Watchdog(Peripheral):
             listener(cut)
 
     def _publish(self) -> None:
-        status = STATUS.field("EXPIRED").insert(0, int(self._expired))
-        status = STATUS.field("ARMED").insert(status, int(self._enabled and not self._expired))
+        status = STATUS_EXPIRED.insert(0, int(self._expired))
+        status = STATUS_ARMED.insert(status, int(self._enabled and not self._expired))
         self._store(STATUS, status)
         self._store(REMAINING_US, -(-self._remaining_ns // NS_PER_US))

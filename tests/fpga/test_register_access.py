@@ -1,10 +1,28 @@
-"""Access semantics over every declared register of every peripheral instance."""
+"""Access semantics over every declared register of every peripheral instance, and the
+rules of the declarations themselves (keyword-only, field handles resolved at import)."""
 
 from __future__ import annotations
 
+from types import ModuleType
+
 import pytest
 
-from robot_firmware.fpga import Access, BusErrorKind, Fabric, Field, Register
+from robot_firmware.fpga import (
+    Access,
+    BusErrorKind,
+    Fabric,
+    Field,
+    FieldHandle,
+    Register,
+    clock,
+    digital_filter,
+    positioning,
+    pwm,
+    qep,
+    sonar,
+    sysid,
+    watchdog,
+)
 from robot_firmware.fpga.address_map import BRIDGE_BASE, BRIDGE_SPAN_BYTES, WINDOW_BYTES
 from tests.fpga.register_sites import ALL_SITES, RegisterSite, sites_with
 
@@ -194,20 +212,110 @@ def test_error_counters_count_each_kind_separately() -> None:
 
 def test_declaration_with_overlapping_fields_is_refused() -> None:
     with pytest.raises(ValueError, match="overlaps"):
-        Register("BAD", 0x00, Access.RW, 0, (Field("A", 3, 0, ""), Field("B", 4, 3, "")), "")
+        Register(
+            name="BAD",
+            offset=0x00,
+            access=Access.RW,
+            reset=0,
+            fields=(Field(name="A", msb=3, lsb=0, doc=""), Field(name="B", msb=4, lsb=3, doc="")),
+            doc="",
+        )
 
 
 def test_declaration_with_reset_in_reserved_bits_is_refused() -> None:
     with pytest.raises(ValueError, match="reserved"):
-        Register("BAD", 0x00, Access.RW, 0x10, (Field("A", 3, 0, ""),), "")
+        Register(
+            name="BAD",
+            offset=0x00,
+            access=Access.RW,
+            reset=0x10,
+            fields=(Field(name="A", msb=3, lsb=0, doc=""),),
+            doc="",
+        )
 
 
 @pytest.mark.parametrize("offset", [0x02, -4, WINDOW_BYTES])
 def test_declaration_outside_a_word_slot_is_refused(offset: int) -> None:
     with pytest.raises(ValueError, match="word slot"):
-        Register("BAD", offset, Access.RW, 0, (Field("A", 3, 0, ""),), "")
+        Register(
+            name="BAD",
+            offset=offset,
+            access=Access.RW,
+            reset=0,
+            fields=(Field(name="A", msb=3, lsb=0, doc=""),),
+            doc="",
+        )
 
 
 def test_declaration_with_bits_beyond_32_is_refused() -> None:
     with pytest.raises(ValueError, match="bit range"):
-        Field("A", 32, 0, "")
+        Field(name="A", msb=32, lsb=0, doc="")
+
+
+def _ctrl_register() -> Register:
+    return Register(
+        name="CTRL",
+        offset=0x08,
+        access=Access.RW,
+        reset=0,
+        fields=(
+            Field(name="EN", msb=0, lsb=0, doc="enable"),
+            Field(name="GAIN", msb=7, lsb=4, doc="gain"),
+        ),
+        doc="Control.",
+    )
+
+
+def test_positional_register_declaration_is_refused() -> None:
+    en = Field(name="EN", msb=0, lsb=0, doc="enable")
+    with pytest.raises(TypeError, match="positional"):
+        Register("CTRL", 0x00, Access.RW, 0, (en,), "Control.")  # type: ignore[call-arg]
+
+
+def test_positional_field_declaration_is_refused() -> None:
+    with pytest.raises(TypeError, match="positional"):
+        Field("EN", 0, 0, "enable")  # type: ignore[call-arg]
+
+
+def test_handle_of_an_unknown_field_is_refused_where_it_is_declared() -> None:
+    ctrl = _ctrl_register()
+    with pytest.raises(KeyError, match=r"CTRL has no field ENABLE \(fields: EN, GAIN\)"):
+        ctrl.field("ENABLE")
+
+
+def test_handle_of_a_field_from_another_register_is_refused() -> None:
+    stray = Field(name="EN", msb=0, lsb=0, doc="enable")
+    with pytest.raises(ValueError, match="not a field of CTRL"):
+        FieldHandle(register=_ctrl_register(), field=stray)
+
+
+def test_field_handle_knows_its_register_mask_and_shift() -> None:
+    ctrl = _ctrl_register()
+    gain = ctrl.field("GAIN")
+    assert gain.register is ctrl
+    assert gain.field is ctrl.fields[1]
+    assert gain.name == "CTRL.GAIN"
+    assert (gain.offset, gain.mask, gain.shift, gain.width) == (0x08, 0xF0, 4, 4)
+    assert gain.extract(0xFFFF_FF5F) == 0x5
+    assert gain.insert(0xFFFF_FFFF, 0x3) == 0xFFFF_FF3F
+    assert gain.insert(0, 0x13) == 0x30  # truncated to the field width
+
+
+IP_MODULES = (clock, digital_filter, positioning, pwm, qep, sonar, sysid, watchdog)
+
+
+def _handles(module: ModuleType) -> list[tuple[str, FieldHandle]]:
+    return [(name, v) for name, v in vars(module).items() if isinstance(v, FieldHandle)]
+
+
+@pytest.mark.parametrize("module", IP_MODULES, ids=lambda m: m.__name__.rsplit(".", 1)[-1])
+def test_field_handles_of_an_ip_are_named_for_and_bound_to_its_own_registers(
+    module: ModuleType,
+) -> None:
+    handles = _handles(module)
+    assert handles, f"{module.__name__} declares no field handles"
+    for name, handle in handles:
+        assert any(handle.register is reg for reg in module.REGISTERS), name
+        assert name == f"{handle.register.name}_{handle.field.name}"
+        assert handle.mask == handle.field.mask
+        assert handle.shift == handle.field.lsb
