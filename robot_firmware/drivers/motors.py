@@ -32,9 +32,9 @@ from robot_firmware.fpga.clock import C0_HZ, DEFAULT_FABRIC_CLOCK_HZ
 
 DEFAULT_PWM_FREQUENCY_HZ = 20_000.0
 
-_EN = pwm_map.CTRL.field("EN")
-_DIR = pwm_map.CTRL.field("DIR")
-_MAX_PERIOD_TICKS = pwm_map.PERIOD_TICKS.field("TICKS").mask
+_CTRL_FORWARD = pwm_map.CTRL_EN.insert(0, 1)
+_CTRL_REVERSE = pwm_map.CTRL_DIR.insert(_CTRL_FORWARD, 1)
+_MAX_PERIOD_TICKS = pwm_map.PERIOD_TICKS_TICKS.mask
 
 
 class MotorDriver:
@@ -78,14 +78,13 @@ class MotorDriver:
         if clock_hz is None:
             clock_hz = DEFAULT_FABRIC_CLOCK_HZ
         period_ticks = min(max(round(clock_hz / pwm_frequency_hz), 1), _MAX_PERIOD_TICKS)
-        enabled = _EN.insert(0, 1)
         self._ctrl_written = [None] * self.wheel_count
         self._duty_written = [None] * self.wheel_count
         for wheel in range(self.wheel_count):
             self._write_duty(wheel, 0)
             if self._port.write(self._period_addresses[wheel], period_ticks):
                 self._period_ticks[wheel] = period_ticks
-            self._write_ctrl(wheel, enabled)
+            self._write_ctrl(wheel, _CTRL_FORWARD)
         self.last_duty = (0.0,) * self.wheel_count
 
     def set_duty(self, duty: Sequence[float]) -> None:
@@ -100,7 +99,7 @@ class MotorDriver:
         command = np.clip(np.nan_to_num(command, nan=0.0, posinf=0.0, neginf=0.0), -1.0, 1.0)
         for wheel, wheel_duty in enumerate(command.tolist()):
             duty_ticks = round(abs(wheel_duty) * self._period_ticks[wheel])
-            ctrl = _DIR.insert(_EN.insert(0, 1), int(wheel_duty < 0.0))
+            ctrl = _CTRL_REVERSE if wheel_duty < 0.0 else _CTRL_FORWARD
             previous_ticks = self._duty_written[wheel]
             if previous_ticks is not None and duty_ticks > previous_ticks:
                 self._write_ctrl(wheel, ctrl)

@@ -35,7 +35,7 @@ _STATUS = POSITIONING_BASE + positioning_map.STATUS.offset
 _X_UM = POSITIONING_BASE + positioning_map.X_UM.offset
 _Y_UM = POSITIONING_BASE + positioning_map.Y_UM.offset
 _HEADING_URAD = POSITIONING_BASE + positioning_map.HEADING_URAD.offset
-_VALID = positioning_map.STATUS.field("VALID").mask
+_VALID = positioning_map.STATUS_VALID.mask
 
 
 @dataclass(frozen=True)

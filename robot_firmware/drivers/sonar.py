@@ -39,12 +39,10 @@ from robot_firmware.fpga.sonar import range_m_for_width_ticks
 
 FloatArray = NDArray[np.float64]
 
-_START = sonar_map.TRIGGER.field("START").mask
-_DATA_READY = sonar_map.EVENTS.field("DATA_READY").mask
-_TIMEOUT = sonar_map.EVENTS.field("TIMEOUT").mask
-_MISSED = sonar_map.EVENTS.field("MISSED").mask
-_STATUS_MODE = filter_map.STATUS.field("MODE")
-_STATUS_LENGTH = filter_map.STATUS.field("LENGTH")
+_START = sonar_map.TRIGGER_START.mask
+_DATA_READY = sonar_map.EVENTS_DATA_READY.mask
+_TIMEOUT = sonar_map.EVENTS_TIMEOUT.mask
+_MISSED = sonar_map.EVENTS_MISSED.mask
 
 
 class SonarDriver:
@@ -113,4 +111,7 @@ class SonarDriver:
         status = self._port.read(SONAR_FILTER_BASE + filter_map.STATUS.offset)
         if status is None:
             return False
-        return _STATUS_MODE.extract(status) == mode and _STATUS_LENGTH.extract(status) == window
+        return (
+            filter_map.STATUS_MODE.extract(status) == mode
+            and filter_map.STATUS_LENGTH.extract(status) == window
+        )

@@ -27,7 +27,7 @@ from robot_firmware.fpga.sysid import SYSTEM_ID
 SUPPORTED_VERSION_MAJOR = 1
 DEFAULT_LOCK_POLL_INTERVAL_NS = 1_000
 
-_LOCKED = clock_map.STATUS.field("LOCKED").mask
+_LOCKED = clock_map.STATUS_LOCKED.mask
 
 
 class IncompatibleFabricError(RuntimeError):
@@ -78,16 +78,16 @@ class SystemProbe:
             raise IncompatibleFabricError(
                 f"System ID {words['ID']:#010x} is not the swarm-robot image {SYSTEM_ID:#010x}"
             )
-        version, caps = sysid_map.VERSION, sysid_map.CAPS
+        version, caps = words["VERSION"], words["CAPS"]
         info = SystemInfo(
             system_id=words["ID"],
-            version_major=version.field("MAJOR").extract(words["VERSION"]),
-            version_minor=version.field("MINOR").extract(words["VERSION"]),
-            version_patch=version.field("PATCH").extract(words["VERSION"]),
+            version_major=sysid_map.VERSION_MAJOR.extract(version),
+            version_minor=sysid_map.VERSION_MINOR.extract(version),
+            version_patch=sysid_map.VERSION_PATCH.extract(version),
             build=words["BUILD"],
-            n_qep=caps.field("N_QEP").extract(words["CAPS"]),
-            n_pwm=caps.field("N_PWM").extract(words["CAPS"]),
-            n_sonar=caps.field("N_SONAR").extract(words["CAPS"]),
+            n_qep=sysid_map.CAPS_N_QEP.extract(caps),
+            n_pwm=sysid_map.CAPS_N_PWM.extract(caps),
+            n_sonar=sysid_map.CAPS_N_SONAR.extract(caps),
         )
         if info.version_major != SUPPORTED_VERSION_MAJOR:
             raise IncompatibleFabricError(

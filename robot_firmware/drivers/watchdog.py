@@ -18,9 +18,9 @@ from robot_firmware.fpga.address_map import WATCHDOG_BASE
 from robot_firmware.fpga.bus import Bus
 from robot_firmware.fpga.watchdog import KICK_MAGIC
 
-_MAX_TIMEOUT_MS = watchdog_map.TIMEOUT_MS.field("MS").mask
-_EN = watchdog_map.CTRL.field("EN").mask
-_EXPIRED = watchdog_map.STATUS.field("EXPIRED").mask
+_MAX_TIMEOUT_MS = watchdog_map.TIMEOUT_MS_MS.mask
+_EN = watchdog_map.CTRL_EN.mask
+_EXPIRED = watchdog_map.STATUS_EXPIRED.mask
 
 
 class WatchdogDriver:
