@@ -15,6 +15,8 @@ class MetricsConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     steady_state_start_s: float = Field(default=20.0, ge=0.0)
+    fitness_window_start_s: float = Field(default=0.0, ge=0.0)
+    """Start of the window of eq. 16's error term; 0 averages over the whole run."""
     nominal_hold_s: float = Field(default=3.0, ge=0.0)
     apf_influence_m: PositiveFloat = 0.4
     body_radius_m: PositiveFloat = 0.3

@@ -11,8 +11,9 @@ slot for a follower) has stayed farther than ρ₀ + 2·body radius from every o
 the last `nominal_hold_s`.  RMS figures are taken over the steady-state window t >= start and
 reported over nominal samples (tracking quality) and over all samples (`_all`).
 
-The fitness of eq. 16 uses the time average over the window of Σ_i (|x_ei| + |y_ei| + |θ_ei|)
-(DESIGN.md §6), so its value does not depend on the run's length.
+The fitness of eq. 16 uses the time average of Σ_i (|x_ei| + |y_ei| + |θ_ei|) over its own
+window t >= `fitness_window_start_s` (default 0: the whole run, transient included, DESIGN.md §6),
+so its value does not depend on the run's length; the RMS figures keep the steady-state window.
 
 `MetricsAccumulator` consumes one sample at a time for any batch shape, so a live process and the
 batch simulator produce the same numbers from the same code.
@@ -128,6 +129,7 @@ class MetricsAccumulator:
         self.max_position_nominal = np.zeros(shape)
         self.max_position_all = np.zeros(shape)
         self.sum_abs_error = np.zeros(batch_shape)
+        self.count_fitness = np.zeros(batch_shape)
         self.min_robot_gap_m = np.full(batch_shape, np.inf)
         self.min_obstacle_gap_m = np.full(batch_shape, np.inf)
         self.collisions = np.zeros(batch_shape, dtype=np.int64)
@@ -188,7 +190,9 @@ class MetricsAccumulator:
             self.max_position_nominal = np.maximum(
                 self.max_position_nominal, np.where(nominal, pos, 0.0)
             )
+        if t_s >= cfg.fitness_window_start_s:
             self.sum_abs_error += np.sum(np.abs(errors), axis=(-2, -1))
+            self.count_fitness += 1.0
         self.last_t_s = t_s
         return errors
 
@@ -197,8 +201,8 @@ class MetricsAccumulator:
             return np.where(count > 0, np.sqrt(sum_sq / np.maximum(count, 1.0)), np.nan)
 
     def mean_abs_error_sum(self) -> FloatArray:
-        """Time average over the window of Σ_i (|x_ei| + |y_ei| + |θ_ei|), for eq. 16."""
-        count = self.count_all[..., 0]
+        """Time average of Σ_i (|x_ei| + |y_ei| + |θ_ei|) over the fitness window, for eq. 16."""
+        count = self.count_fitness
         return np.where(count > 0, self.sum_abs_error / np.maximum(count, 1.0), np.nan)
 
     def summaries(self) -> list[dict[str, object]]:

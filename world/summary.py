@@ -1,5 +1,9 @@
 """summary.json of a run (swarm sim and the world process): schema in docs/summary-schema.md.
 
+The fitness of eq. 16 (``fitness_snr_db``) is computed from ``mean_abs_error_sum``, the time
+average of the summed absolute pose errors over t >= ``metrics.fitness_window_start_s``
+(default 0: the whole run), and the rule count, with the weights of the scenario's ``fitness``.
+
 Only simulated quantities go in, never wall-clock figures, so equal seeds give equal files.
 Files are written atomically (temporary file, then rename): a killed process leaves either the
 old file or the new one, never half of one.
@@ -59,6 +63,7 @@ def build_summary(
         "robots": list(scenario.robot_names),
         "controller": controller_label(fuzzy),
         "steady_state_start_s": scenario.metrics.steady_state_start_s,
+        "fitness_window_start_s": scenario.metrics.fitness_window_start_s,
         **metrics,
         "rule_count_total": rule_count_total if fuzzy else 0,
         "fitness_snr_db": snr,

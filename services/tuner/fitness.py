@@ -11,10 +11,13 @@ Cost, to be minimised (the optimisers' contract), is the argument of the logarit
 
     cost = w_e · mean_t Σ_i (|x_ei| + |y_ei| + |θ_ei|) + w_r · Σ_i N_i  [+ collision penalty]
 
-The error term is the time average over the steady-state window of the sum over robots of
-the absolute pose errors (m and rad added as numbers, DESIGN §6 and §8, errors from ground
-truth); Σ_i N_i is the rule count K = n_e · n_ė of the candidate times the number of robots,
-since every robot runs the same scheduler. The weights are the scenario's ``fitness`` section.
+The error term is the time average over the fitness window of the sum over robots of the
+absolute pose errors (m and rad added as numbers, DESIGN §6 and §8, errors from ground truth).
+The window is the scenario's ``metrics.fitness_window_start_s`` (default 0: the whole run,
+the transient from the starting poses included, which is where gain scheduling matters most);
+the tracking RMS figures keep their own steady-state window. Σ_i N_i is the rule count
+K = n_e · n_ė of the candidate times the number of robots, since every robot runs the same
+scheduler. The weights are the scenario's ``fitness`` section.
 The fitness is eq. 16, fitness_db = -10 log10(cost), maximised.
 
 Collisions: the metrics count contact onsets (robot-robot and robot-obstacle). A candidate
@@ -25,9 +28,10 @@ candidates cost 0.15-0.17 at 30 s evaluations), while colliding candidates stay 
 tracking error. A candidate whose error sum is not finite costs :data:`FAILED_CANDIDATE_COST`.
 
 Shorter evaluations: ``duration_s`` shortens the simulated run (tuning is dominated by
-simulation time). The steady-state window then keeps its share of the run: its start becomes
-steady_state_start_s · duration_s / scenario.duration_s (20 s of 60 s becomes 10 s of 30 s).
-:func:`evaluation_scenario` builds that scenario; its metrics are what the fitness uses.
+simulation time). Both windows then keep their share of the run: a start becomes
+start · duration_s / scenario.duration_s (20 s of 60 s becomes 10 s of 30 s; the default
+fitness window, from 0 s, stays the whole run). :func:`evaluation_scenario` builds that
+scenario; its metrics are what the fitness uses.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ from numpy.typing import ArrayLike
 from services.sim.batch import run_batch
 from services.tuner.evaluation import FloatArray, IntArray, Objective, snr_fitness_from_cost
 from services.tuner.fuzzy_encoding import decode
-from swarm_config.scenario import Scenario
+from swarm_config.scenario import FitnessSpec, Scenario
 from world.metrics import FormationLayout
 
 DEFAULT_COLLISION_PENALTY = 1.0
@@ -56,11 +60,13 @@ class FitnessResult:
 
     cost: what the optimisers minimise (eq. 16's argument plus collision penalties);
     fitness_db: -10 log10(cost), eq. 16 (exactly eq. 16 for a collision-free candidate);
-    mean_abs_error_sum: time-averaged Σ_i (|x_e| + |y_e| + |θ_e|) over the steady window;
+    mean_abs_error_sum: time-averaged Σ_i (|x_e| + |y_e| + |θ_e|) over the fitness window;
     rule_count: Σ_i N_i, the rules of all robots;
     collisions: contact onsets during the run;
     leader_tracking_rms_m: leader position RMS over nominal steady-state samples (NaN if none);
-    formation_rms_m: (P, F) follower position RMS, columns in ``follower_names`` order.
+    formation_rms_m: (P, F) follower position RMS, columns in ``follower_names`` order;
+    fitness_window_start_s, steady_state_start_s: window starts of the evaluated (possibly
+    shortened) runs, for the error term and for the RMS figures.
     """
 
     cost: FloatArray
@@ -72,33 +78,61 @@ class FitnessResult:
     formation_rms_m: FloatArray
     follower_names: tuple[str, ...]
     duration_s: float
+    fitness_window_start_s: float
     steady_state_start_s: float
     seed: int
 
 
+def eq16_cost(
+    mean_abs_error_sum: ArrayLike,
+    rule_count: ArrayLike,
+    collisions: ArrayLike,
+    weights: FitnessSpec,
+    collision_penalty: float = DEFAULT_COLLISION_PENALTY,
+) -> FloatArray:
+    """The argument of eq. 16's logarithm, per candidate, plus the collision penalty.
+
+    w_e · mean_t Σ_i (|x_ei| + |y_ei| + |θ_ei|) + w_r · Σ_i N_i + penalty · collisions; a
+    candidate whose cost is not finite and positive costs :data:`FAILED_CANDIDATE_COST`.
+    """
+    cost = (
+        weights.error_weight * np.asarray(mean_abs_error_sum, dtype=np.float64)
+        + weights.rule_weight * np.asarray(rule_count, dtype=np.float64)
+        + collision_penalty * np.asarray(collisions, dtype=np.float64)
+    )
+    checked: FloatArray = np.where(np.isfinite(cost) & (cost > 0.0), cost, FAILED_CANDIDATE_COST)
+    return checked
+
+
 def evaluation_scenario(scenario: Scenario, duration_s: float | None = None) -> Scenario:
-    """The scenario a candidate is scored on: shortened to ``duration_s``, window rescaled.
+    """The scenario a candidate is scored on: shortened to ``duration_s``, windows rescaled.
 
     The fuzzy scheduler is always enabled (it is what is being scored). Raises ValueError when
-    the duration is not positive or the steady-state window would hold no sample.
+    the duration is not positive or the fitness window would hold no sample.
     """
     duration = scenario.duration_s if duration_s is None else float(duration_s)
     if not np.isfinite(duration) or duration <= 0.0:
         raise ValueError(
             f"evaluation duration must be a positive number of seconds, got {duration}"
         )
-    start = scenario.metrics.steady_state_start_s * duration / scenario.duration_s
-    if start >= duration:
+    share = duration / scenario.duration_s
+    fitness_start = scenario.metrics.fitness_window_start_s * share
+    if fitness_start >= duration:
         raise ValueError(
-            f"scenario {scenario.name!r}: the steady-state window starts at "
-            f"{scenario.metrics.steady_state_start_s} s, not before the end of the run "
+            f"scenario {scenario.name!r}: the fitness window starts at "
+            f"{scenario.metrics.fitness_window_start_s} s, not before the end of the run "
             f"({scenario.duration_s} s), so eq. 16 has no samples"
         )
     period_s = scenario.controller.control_period_s
     if duration < 2.0 * period_s:
         raise ValueError(f"evaluation duration {duration} s is shorter than two control periods")
     controller = scenario.controller.model_copy(update={"fuzzy_enabled": True})
-    metrics = scenario.metrics.model_copy(update={"steady_state_start_s": start})
+    metrics = scenario.metrics.model_copy(
+        update={
+            "steady_state_start_s": scenario.metrics.steady_state_start_s * share,
+            "fitness_window_start_s": fitness_start,
+        }
+    )
     return scenario.model_copy(
         update={"duration_s": duration, "metrics": metrics, "controller": controller}
     )
@@ -131,7 +165,7 @@ def evaluate_fitness(
     """Score a batch of decision vectors (P, 16) in [0, 1] on ``scenario`` (eq. 16).
 
     One batch simulation of P runs with shared noise (common random numbers); ``seed``
-    defaults to the scenario's, ``duration_s`` to its duration (the steady window is rescaled,
+    defaults to the scenario's, ``duration_s`` to its duration (the windows are rescaled,
     see the module docstring). Returns costs for minimisation and the figures behind them.
     """
     if collision_penalty < 0.0:
@@ -151,13 +185,7 @@ def evaluate_fitness(
     error_sum = np.asarray(result.metrics.mean_abs_error_sum(), dtype=np.float64).reshape(-1)
     rule_count = np.asarray(result.rule_count, dtype=np.int64).reshape(-1)
     collisions = np.asarray(result.metrics.collisions, dtype=np.int64).reshape(-1)
-    weights = evaluated.fitness
-    cost = (
-        weights.error_weight * error_sum
-        + weights.rule_weight * rule_count
-        + collision_penalty * collisions
-    )
-    cost = np.where(np.isfinite(cost) & (cost > 0.0), cost, FAILED_CANDIDATE_COST)
+    cost = eq16_cost(error_sum, rule_count, collisions, evaluated.fitness, collision_penalty)
     layout = FormationLayout.from_scenario(evaluated)
     follower_names = tuple(layout.names[i] for i in layout.follower_indices)
     formation = np.array(
@@ -175,6 +203,7 @@ def evaluate_fitness(
         formation_rms_m=formation,
         follower_names=follower_names,
         duration_s=evaluated.duration_s,
+        fitness_window_start_s=evaluated.metrics.fitness_window_start_s,
         steady_state_start_s=evaluated.metrics.steady_state_start_s,
         seed=noise_seed,
     )

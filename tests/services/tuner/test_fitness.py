@@ -1,5 +1,6 @@
 """Eq. 16 fitness of candidate schedulers through one shared-noise batch simulation."""
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -8,14 +9,18 @@ import yaml
 
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from services.sim.batch import run_batch
+from services.tuner.evaluation import snr_fitness_from_cost
 from services.tuner.fitness import (
+    eq16_cost,
     evaluate_fitness,
     evaluation_scenario,
     make_objective,
 )
 from services.tuner.fuzzy_encoding import DIMENSION, encode_default
-from swarm_config.scenario import Scenario, load_scenario, parse_scenario
-from world.metrics import fitness_snr
+from swarm_config.metrics import MetricsConfig
+from swarm_config.scenario import FitnessSpec, Scenario, load_scenario, parse_scenario
+from world.metrics import FormationLayout, MetricsAccumulator, fitness_snr
+from world.summary import build_summary
 
 ROOT = Path(__file__).resolve().parents[3]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -76,17 +81,74 @@ def test_another_noise_seed_gives_other_costs(paper: Scenario) -> None:
     assert first.seed == 1
 
 
-def test_rule_count_enters_the_cost_with_the_rule_weight(paper: Scenario) -> None:
+# Two robots, the follower's slot 1 m straight behind the leader. After the transient every
+# sample has the same, known errors; before it, the leader is 0.4 m further off in x.
+HAND_LAYOUT = FormationLayout(
+    names=("robot1", "robot2"),
+    leader_index=0,
+    slot_distance_m=np.array([0.0, 1.0]),
+    slot_angle_rad=np.array([0.0, np.pi]),
+)
+HAND_REFERENCE = np.array([0.0, 0.0, 0.05])  # the leader's trajectory pose, θ_d = 0.05 rad
+SETTLED_POSE = np.array(
+    [
+        [0.03, -0.04, 0.0],  # leader: x_e = 0.03, y_e = -0.04, θ_e = -0.05 -> 0.12
+        [0.03 - 1.0 + 0.01, -0.04 + 0.02, -0.03],  # follower vs slot (-0.97, -0.04, 0): 0.06
+    ]
+)
+TRANSIENT_POSE = SETTLED_POSE + np.array([[0.4, 0.0, 0.0], [0.4, 0.0, 0.0]])  # leader: 0.52
+# Samples every 0.1 s for 2 s: t < 0.5 s (5 samples) transient, Σ|e| = 0.52 + 0.06 = 0.58;
+# t >= 0.5 s (15 samples) settled, Σ|e| = 0.12 + 0.06 = 0.18. Over the whole run the mean is
+# (5 · 0.58 + 15 · 0.18) / 20 = 0.28; from 0.45 s on it is 0.18.
+
+
+def _hand_metrics(fitness_window_start_s: float) -> MetricsAccumulator:
+    config = MetricsConfig(
+        steady_state_start_s=1.0,
+        fitness_window_start_s=fitness_window_start_s,
+        nominal_hold_s=0.5,
+        apf_influence_m=0.4,
+        body_radius_m=0.3,
+    )
+    metrics = MetricsAccumulator((1,), HAND_LAYOUT, np.zeros((0, 2)), np.zeros(0), config)
+    for k in range(20):
+        pose = TRANSIENT_POSE if k < 5 else SETTLED_POSE
+        metrics.update(0.1 * k, pose[None], HAND_REFERENCE)
+    return metrics
+
+
+@pytest.mark.parametrize(
+    ("window_start_s", "error_weight", "rule_weight", "expected_db"),
+    [
+        # K = 3 x 5 = 15 rules on each of the two robots: Σ_i N_i = 30.
+        (0.0, 1.0, 1e-4, -10.0 * math.log10(1.0 * 0.28 + 1e-4 * 30)),  # 5.482 dB
+        (0.45, 1.0, 1e-4, -10.0 * math.log10(1.0 * 0.18 + 1e-4 * 30)),  # 7.375 dB
+        (0.0, 2.0, 1e-3, -10.0 * math.log10(2.0 * 0.28 + 1e-3 * 30)),  # 2.291 dB
+    ],
+)
+def test_eq16_of_a_hand_computed_error_sequence(
+    window_start_s: float, error_weight: float, rule_weight: float, expected_db: float
+) -> None:
+    metrics = _hand_metrics(window_start_s)
+    weights = FitnessSpec(error_weight=error_weight, rule_weight=rule_weight)
+    cost = eq16_cost(metrics.mean_abs_error_sum(), [30], metrics.collisions, weights)
+    assert metrics.collisions.tolist() == [0]
+    assert snr_fitness_from_cost(cost)[0] == pytest.approx(expected_db, abs=1e-9)
+    # summary.json reports the same eq. 16 from the same samples.
+    scenario = load_scenario(PAPER).model_copy(update={"fitness": weights})
+    summary = build_summary(scenario, metrics.summaries()[0], True, 30, 0, 0)
+    assert summary["fitness_snr_db"] == pytest.approx(expected_db, abs=1e-5)
+
+
+def test_rule_counts_of_decoded_candidates_enter_the_cost(paper: Scenario) -> None:
     result = evaluate_fitness(
         np.vstack([encode_default(7, 7), encode_default(3, 3)]), paper, duration_s=SHORT_S
     )
-    np.testing.assert_array_equal(result.rule_count, [147, 27])
-    weights = paper.fitness
-    np.testing.assert_allclose(
-        result.cost,
-        weights.error_weight * result.mean_abs_error_sum + weights.rule_weight * result.rule_count,
-        rtol=1e-15,
-    )
+    np.testing.assert_array_equal(result.rule_count, [3 * 49, 3 * 9])
+    # Same error sum up to the scheduler's effect; 120 more rules cost 120 · w_r more.
+    rules_cost = paper.fitness.rule_weight * (147 - 27)
+    error_cost = paper.fitness.error_weight * np.diff(result.mean_abs_error_sum[::-1])[0]
+    assert result.cost[0] - result.cost[1] == pytest.approx(rules_cost + error_cost, rel=1e-12)
 
 
 def test_a_colliding_candidate_pays_the_penalty_per_collision() -> None:
@@ -101,13 +163,41 @@ def test_a_colliding_candidate_pays_the_penalty_per_collision() -> None:
     assert penalised.fitness_db[0] < free.fitness_db[0]
 
 
-def test_shorter_evaluations_keep_the_steady_window_share(paper: Scenario) -> None:
+def test_shorter_evaluations_keep_the_windows_share(paper: Scenario) -> None:
+    assert paper.metrics.fitness_window_start_s == 0.0  # eq. 16 averages over the whole run
     shortened = evaluation_scenario(paper, 30.0)
     assert shortened.duration_s == 30.0
     assert shortened.metrics.steady_state_start_s == pytest.approx(
         paper.metrics.steady_state_start_s / 2.0
     )
+    assert shortened.metrics.fitness_window_start_s == 0.0
+    late = paper.model_copy(
+        update={"metrics": paper.metrics.model_copy(update={"fitness_window_start_s": 12.0})}
+    )
+    assert evaluation_scenario(late, 30.0).metrics.fitness_window_start_s == pytest.approx(6.0)
     assert evaluation_scenario(paper).duration_s == paper.duration_s
+
+
+def test_the_fitness_window_decides_which_samples_eq16_averages(paper: Scenario) -> None:
+    late = paper.model_copy(
+        update={"metrics": paper.metrics.model_copy(update={"fitness_window_start_s": 1.0})}
+    )
+    whole = evaluate_fitness(encode_default(), paper, duration_s=SHORT_S)
+    settled = evaluate_fitness(encode_default(), late, duration_s=SHORT_S)
+    assert whole.fitness_window_start_s == 0.0 and settled.fitness_window_start_s == 1.0 / 30.0
+    assert whole.mean_abs_error_sum[0] != settled.mean_abs_error_sum[0]
+    # The tracking figures keep the steady-state window: the same for both.
+    assert whole.leader_tracking_rms_m[0] == settled.leader_tracking_rms_m[0] or (
+        np.isnan(whole.leader_tracking_rms_m[0]) and np.isnan(settled.leader_tracking_rms_m[0])
+    )
+
+
+def test_a_fitness_window_past_the_run_is_refused(paper: Scenario) -> None:
+    late = paper.model_copy(
+        update={"metrics": paper.metrics.model_copy(update={"fitness_window_start_s": 60.0})}
+    )
+    with pytest.raises(ValueError, match="fitness window"):
+        make_objective(late, duration_s=30.0)
 
 
 @pytest.mark.parametrize("duration_s", [0.0, -5.0, float("nan"), 0.005])
