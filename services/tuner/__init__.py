@@ -3,13 +3,15 @@
 The paper's orthogonal firefly algorithm (OFA) is the firefly algorithm of
 eqs. 1-4 with rank-based mutation (eq. 5) and parameters chosen by a Taguchi
 L25(5^6) design (Table 1). It is compared at equal evaluation budgets with
-plain FA, a real-coded GA and PSO (Fig. 14), on the SNR fitness of eq. 16.
+plain FA, a real-coded GA and PSO (Fig. 14), on the SNR fitness of eq. 16, and with
+pure random search as the floor every one of them must clear.
 
 Every optimiser minimises a positive cost over [0, 1]^D, evaluates each
 generation as one batch, draws randomness only from an injected generator, and
 can checkpoint and resume a run exactly. An algorithm object
 (:class:`OrthogonalFireflyAlgorithm`, :class:`FireflyAlgorithm`, :class:`GeneticAlgorithm`,
-:class:`ParticleSwarm`, each holding its parameters) says how one generation is made;
+:class:`ParticleSwarm`, :class:`RandomSearch`, each holding its parameters) says how one
+generation is made;
 :func:`run_population_algorithm` runs it on an objective, and :data:`ALGORITHMS` gives the
 default-parameter ones a seed-based signature.
 
@@ -48,6 +50,7 @@ from services.tuner.ofa import (
     make_ofa_trial,
     ofa_parameters_from_design,
 )
+from services.tuner.random_search import RandomSearch, RandomSearchParameters
 from services.tuner.rank_mutation import RankMutationParameters
 from services.tuner.registry import ALGORITHMS, AlgorithmRunner, seeded_runner
 from services.tuner.result import ConvergenceHistory, OptimisationResult
@@ -77,6 +80,8 @@ __all__ = [
     "ParticleSwarm",
     "ParticleSwarmParameters",
     "ProgressCallback",
+    "RandomSearch",
+    "RandomSearchParameters",
     "RankMutationParameters",
     "TaguchiFactor",
     "TaguchiResult",

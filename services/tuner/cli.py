@@ -1,7 +1,9 @@
 """`swarm tune`: tune the fuzzy scheduler (eqs. 6-7, Table 2) on eq. 16 with OFA, FA, GA or PSO.
 
-    swarm tune --scenario FILE --out DIR [--algo ofa|fa|ga|pso[,...]] [--budget N] [--seed S]
-               [--duration S] [--resume]
+    swarm tune --scenario FILE --out DIR [--algo ofa|fa|ga|pso|random[,...]] [--budget N]
+               [--seed S] [--duration S] [--resume]
+
+``random`` is pure random search at the same budget, the baseline the optimisers must beat.
 
 Each algorithm of ``--algo`` (a comma list runs several, one after the other, at the same budget
 and seed) searches the 16-dimensional decision space of :mod:`services.tuner.fuzzy_encoding`;
@@ -65,8 +67,9 @@ DEFAULT_ALGORITHM = "ofa"
 DEFAULT_BUDGET = 800
 """Evaluations per algorithm: 20 generations of 40 candidates."""
 DEFAULT_EVALUATION_DURATION_S = 30.0
-"""Simulated seconds per evaluation (at most the scenario's duration); on the paper scenario the
-steady window is then 10-30 s, more than one lap of the circle and one pass of the obstacle."""
+"""Simulated seconds per evaluation (at most the scenario's duration); on the paper scenario eq. 16
+then averages over 0-30 s: the approach from the starting poses, more than one lap of the circle
+and one pass of the obstacle."""
 EXIT_INTERRUPTED = 130
 
 
@@ -152,8 +155,8 @@ def add_tune_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentPars
         "--algo",
         default=DEFAULT_ALGORITHM,
         metavar="NAMES",
-        help=f"ofa, fa, ga or pso, or a comma list run one after the other at the same budget "
-        f"and seed (default: {DEFAULT_ALGORITHM})",
+        help="ofa, fa, ga, pso or random (random search), or a comma list run one after the "
+        f"other at the same budget and seed (default: {DEFAULT_ALGORITHM})",
     )
     tune.add_argument(
         "--budget",
@@ -170,7 +173,7 @@ def add_tune_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentPars
         type=float,
         default=None,
         metavar="S",
-        help="simulated seconds per evaluation; the steady-state window keeps its share of the "
+        help="simulated seconds per evaluation; the fitness window keeps its share of the "
         f"scenario's run (default: {DEFAULT_EVALUATION_DURATION_S:g}, or the scenario's "
         "duration if shorter)",
     )
@@ -216,7 +219,7 @@ def run_tune(args: argparse.Namespace) -> int:
     print(
         f"tune {','.join(algorithms)} on {scenario.name}: {first.budget} evaluations each of "
         f"{first.evaluation_duration_s:g} s simulated (eq. 16 over t >= "
-        f"{first.steady_state_start_s:g} s), optimiser seed {first.seed}, noise seed "
+        f"{first.fitness_window_start_s:g} s), optimiser seed {first.seed}, noise seed "
         f"{first.noise_seed}",
         flush=True,
     )

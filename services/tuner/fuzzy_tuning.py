@@ -71,7 +71,7 @@ class TuningSettings:
     seed: int
     noise_seed: int
     evaluation_duration_s: float
-    steady_state_start_s: float
+    fitness_window_start_s: float
     collision_penalty: float
 
     @staticmethod
@@ -103,7 +103,7 @@ class TuningSettings:
             seed=seed,
             noise_seed=scenario.seed,
             evaluation_duration_s=evaluated.duration_s,
-            steady_state_start_s=evaluated.metrics.steady_state_start_s,
+            fitness_window_start_s=evaluated.metrics.fitness_window_start_s,
             collision_penalty=collision_penalty,
         )
 
@@ -332,8 +332,20 @@ def comparable_curves(out_dir: Path, settings: TuningSettings) -> list[Convergen
     return curves
 
 
-ALGORITHM_LABELS = {"ofa": "OFA-fuzzy", "fa": "FA-fuzzy", "ga": "GA-fuzzy", "pso": "PSO-fuzzy"}
-ALGORITHM_COLOURS = {"ofa": "#d62728", "fa": "#ff7f0e", "ga": "#1f77b4", "pso": "#2ca02c"}
+ALGORITHM_LABELS = {
+    "ofa": "OFA-fuzzy",
+    "fa": "FA-fuzzy",
+    "ga": "GA-fuzzy",
+    "pso": "PSO-fuzzy",
+    "random": "random search",
+}
+ALGORITHM_COLOURS = {
+    "ofa": "#d62728",
+    "fa": "#ff7f0e",
+    "ga": "#1f77b4",
+    "pso": "#2ca02c",
+    "random": "#9467bd",
+}
 
 
 def write_convergence_figure(

@@ -1,7 +1,8 @@
 """The tuner's algorithms behind one signature, for equal-budget comparisons (Fig. 14).
 
 ``ALGORITHMS[name](objective, dim, budget, seed, checkpoint_path=None, progress=None)``
-runs OFA, plain FA, GA or PSO with its default parameters from an integer seed.
+runs OFA, plain FA, GA, PSO or pure random search (the baseline all of them must beat)
+with its default parameters from an integer seed.
 The keyword ``checkpoint_every`` (generations between checkpoints, default 10)
 is accepted by all of them as well.
 """
@@ -18,6 +19,7 @@ from services.tuner.evaluation import Objective, ProgressCallback
 from services.tuner.firefly import FireflyAlgorithm
 from services.tuner.generational import PopulationAlgorithm, run_population_algorithm
 from services.tuner.ofa import OrthogonalFireflyAlgorithm
+from services.tuner.random_search import RandomSearch
 from services.tuner.result import OptimisationResult
 
 
@@ -69,4 +71,5 @@ ALGORITHMS: dict[str, AlgorithmRunner] = {
     "fa": seeded_runner(FireflyAlgorithm()),  # untuned FA, no mutation
     "ga": seeded_runner(GeneticAlgorithm()),
     "pso": seeded_runner(ParticleSwarm()),
+    "random": seeded_runner(RandomSearch()),  # uniform draws, batches of 40
 }

@@ -8,6 +8,8 @@ from services.tuner.evaluation import FloatArray
 from services.tuner.registry import ALGORITHMS
 
 ALGORITHM_NAMES = sorted(ALGORITHMS)
+OPTIMISER_NAMES = [name for name in ALGORITHM_NAMES if name != "random"]
+"""The algorithms that learn from earlier evaluations, unlike the random-search baseline."""
 
 
 class CountingObjective:
@@ -84,7 +86,7 @@ def test_progress_is_reported_once_per_generation(name: str) -> None:
     assert [cost for _, _, cost in calls] == result.history.best_cost.tolist()
 
 
-@pytest.mark.parametrize("name", ALGORITHM_NAMES)
+@pytest.mark.parametrize("name", OPTIMISER_NAMES)
 def test_every_algorithm_beats_random_search_tenfold_at_equal_budget(name: str) -> None:
     budget = 2000
     random_search_best = sphere(np.random.default_rng(0).random((budget, 5))).min()
