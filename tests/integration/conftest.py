@@ -9,14 +9,18 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
+from tests.support.waiting import wait_for
+
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+T = TypeVar("T")
 
 
 def free_port() -> int:
@@ -66,15 +70,14 @@ class LiveSwarm:
             return {}
         return json.loads(result.stdout)
 
-    def wait_for(self, predicate, timeout_s: float = 90.0, every_s: float = 0.5):  # type: ignore[no-untyped-def]
-        deadline = time.monotonic() + timeout_s
-        last = None
-        while time.monotonic() < deadline:
-            last = predicate()
-            if last:
-                return last
-            time.sleep(every_s)
-        raise AssertionError(f"condition not met within {timeout_s} s; last value {last!r}")
+    def wait_for(
+        self,
+        predicate: Callable[[], T | None],
+        timeout_s: float = 90.0,
+        every_s: float = 0.5,
+        describe: str | None = None,
+    ) -> T:
+        return wait_for(predicate, timeout_s, every_s, describe)
 
 
 @pytest.fixture
