@@ -48,7 +48,7 @@ RUN set -eu; \
 print("\n".join(tomllib.load(open(sys.argv[1], "rb"))["project"]["dependencies"]))' \
         /tmp/pyproject.toml > /tmp/requirements.txt; \
     pip install "$@" --no-compile --only-binary=:all: -r /tmp/requirements.txt \
-        "setuptools>=68" wheel; \
+        "setuptools>=77" wheel; \
     find /opt/venv/lib/python3*/site-packages -depth -type d -name tests -exec rm -rf {} +; \
     rm -rf /tmp/pyproject.toml /tmp/requirements.txt
 

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Creates or refreshes the project's virtual environment in .venv.
 # The environment is rebuilt only when pyproject.toml changes (a stamp file records its hash).
+# It prints one line while it installs; pip's output is kept in .venv/ensure-env.log and
+# printed only when the installation fails.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
@@ -16,6 +18,13 @@ if ! "$python_bin" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) els
 fi
 echo "setting up the environment in $venv (first run only; takes a minute)..." >&2
 [ -x "$venv/bin/python" ] || "$python_bin" -m venv "$venv"
-"$venv/bin/python" -m pip install --quiet --upgrade pip >&2
-"$venv/bin/python" -m pip install --quiet -e "$root[dev]" >&2
+log="$venv/ensure-env.log"
+if ! {
+    "$venv/bin/python" -m pip install --upgrade pip &&
+        "$venv/bin/python" -m pip install -e "$root[dev]"
+} > "$log" 2>&1; then
+    cat "$log" >&2
+    echo "error: installing the environment failed; pip's output above is also in $log" >&2
+    exit 1
+fi
 echo "$want" > "$stamp"
