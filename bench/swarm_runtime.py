@@ -28,9 +28,10 @@ from pathlib import Path
 import numpy as np
 from machine import machine_lines
 
+from robot_firmware.net.admin import admin_request
 from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.messages import LauncherStatusReply, WorldStatusReply
 from robot_firmware.net.session import open_client
-from services.launcher.launcher import admin_request
 
 ROOT = Path(__file__).resolve().parents[1]
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -63,15 +64,18 @@ def _start(out: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
     return process
 
 
-def _world_status(port: int) -> dict | None:
-    return admin_request("lab", f"tcp/127.0.0.1:{port}", "world", "status", None, 2.0)
+def _world_status(port: int) -> WorldStatusReply | None:
+    reply = admin_request(
+        "lab", f"tcp/127.0.0.1:{port}", "world", "status", WorldStatusReply, timeout_s=2.0
+    )
+    return reply if isinstance(reply, WorldStatusReply) else None
 
 
-def _wait_ticking(port: int, timeout_s: float = 60.0) -> dict:
+def _wait_ticking(port: int, timeout_s: float = 60.0) -> WorldStatusReply:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         status = _world_status(port)
-        if status and status.get("tick", 0) > 50:
+        if status is not None and status.tick > 50:
             return status
         time.sleep(0.5)
     raise RuntimeError("the swarm did not start")
@@ -93,7 +97,7 @@ def lockstep_speedup(window_s: float) -> float:
             second = _world_status(port)
             wall = time.monotonic() - t0
             assert second is not None
-            return (second["t_s"] - first["t_s"]) / wall
+            return (second.t_s - first.t_s) / wall
         finally:
             process.terminate()
             process.wait(timeout=30)
@@ -104,9 +108,11 @@ def realtime_run() -> tuple[dict, dict[str, float]]:
     with tempfile.TemporaryDirectory() as out:
         process = _start(Path(out), port, "--duration", "32")
         _wait_ticking(port)
-        status = admin_request("lab", f"tcp/127.0.0.1:{port}", "launcher", "status", None, 2.0)
-        assert status is not None
-        pids = {n: p["pid"] for n, p in status["processes"].items() if p["pid"]}
+        status = admin_request(
+            "lab", f"tcp/127.0.0.1:{port}", "launcher", "status", LauncherStatusReply, timeout_s=2.0
+        )
+        assert isinstance(status, LauncherStatusReply)
+        pids = {n: p.pid for n, p in status.processes.items() if p.pid}
         before = {n: _cpu_seconds(pid) for n, pid in pids.items()}
         t0 = time.monotonic()
         time.sleep(10.0)

@@ -42,8 +42,13 @@ from swarm_config.body import BodyParams
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.sensors import PositioningParams, SonarParams
+from swarm_config.settings import describe_validation_error
 
 FloatArray = NDArray[np.float64]
+
+
+DEFAULT_SCENARIO_PATH = Path("configs/scenarios/paper.yaml")
+"""The paper's experiment, relative to the repository root: what runs when no scenario is given."""
 
 
 class ScenarioError(Exception):
@@ -255,14 +260,6 @@ class Scenario(_Strict):
         return self.metrics.model_copy(update=unset)
 
 
-def _format_validation_error(source: str, error: ValidationError) -> str:
-    lines = [f"{source}: invalid scenario ({error.error_count()} problem(s))"]
-    for item in error.errors(include_url=False):
-        where = ".".join(str(p) for p in item["loc"]) or "(top level)"
-        lines.append(f"  {where}: {item['msg']}")
-    return "\n".join(lines)
-
-
 def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
     """Validate an already-parsed mapping; problems raise ScenarioError."""
     if not isinstance(data, dict):
@@ -270,7 +267,7 @@ def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
     try:
         return Scenario.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError(_format_validation_error(source, exc)) from None
+        raise ScenarioError(describe_validation_error(f"{source}: invalid scenario", exc)) from None
 
 
 def load_scenario(path: Path) -> Scenario:
@@ -303,4 +300,6 @@ def load_rule_base(scenario: Scenario) -> FuzzyRuleBase:
     except yaml.YAMLError as exc:
         raise ScenarioError(f"fuzzy_parameter_file: {path} is not valid YAML: {exc}") from None
     except ValidationError as exc:
-        raise ScenarioError(_format_validation_error(str(path), exc)) from None
+        raise ScenarioError(
+            describe_validation_error(f"{path}: invalid fuzzy parameters", exc)
+        ) from None

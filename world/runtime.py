@@ -31,30 +31,45 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 import zenoh
 from pydantic import (
-    BaseModel,
     ConfigDict,
     Field,
     PositiveFloat,
     ValidationError,
-    ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from robot_firmware.net.admin import AdminQueue
-from robot_firmware.net.keys import SwarmKeys
-from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
+from robot_firmware.net.keys import SwarmKeys, check_name
+from robot_firmware.net.messages import (
+    AdminError,
+    LockstepSeat,
+    LoopTimingReport,
+    NetProfileRequest,
+    NetReply,
+    RadioStats,
+    RobotTruth,
+    RunMetrics,
+    TelemetryMessage,
+    TruthMessage,
+    WorldStatusReply,
+    parse_message,
+)
+from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, encode_clock, encode_sense
 from swarm_config.radio import PROFILES, LinkProfile
-from swarm_config.scenario import Scenario, load_rule_base
+from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario, load_rule_base
+from swarm_config.settings import LayeredSettings, describe_validation_error
 from world.engine import NS_PER_S, WorldEngine
+from world.lockstep import LockstepBarrier, LockstepPacer
 from world.metrics import FormationLayout, reference_points, sample_errors
 from world.summary import build_summary, write_json_atomically
 
@@ -64,11 +79,14 @@ MAX_PHYSICS_STEP_NS = 10_000_000
 """Longest exact physics step; contacts are resolved at least this often."""
 
 
-class WorldConfig(BaseModel):
+class WorldConfig(LayeredSettings):
+    """Settings of the world process: YAML file (`swarm world --config`), then environment,
+    then flags."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     swarm: str = "lab"
-    scenario: Path
+    scenario: Path = DEFAULT_SCENARIO_PATH
     connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
     zenoh_config: Path | None = None
     lockstep: bool = False
@@ -83,43 +101,35 @@ class WorldConfig(BaseModel):
     """Lockstep only: at most this many simulated seconds per wall second (None: as fast as
     the robots answer)."""
 
-    @field_validator("max_speed")
+    WHAT: ClassVar[str] = "world settings"
+    ENV: ClassVar[Mapping[str, str]] = {
+        "swarm": "SWARM_NAME",
+        "scenario": "SWARM_SCENARIO",
+        "connect": "ZENOH_CONNECT",
+        "zenoh_config": "ZENOH_CONFIG",
+        "radio_profile": "SWARM_RADIO_PROFILE",
+    }
+    ENV_PARSERS: ClassVar[Mapping[str, Callable[[str], object]]] = {"connect": split_endpoints}
+
+    @field_validator("swarm")
     @classmethod
-    def _max_speed_needs_lockstep(cls, value: float | None, info: ValidationInfo) -> float | None:
-        if value is not None and not info.data.get("lockstep", False):
-            raise ValueError("applies to lockstep runs only (real time runs at 1)")
+    def _key_chunk(cls, value: str) -> str:
+        return check_name("swarm", value)
+
+    @field_validator("radio_profile")
+    @classmethod
+    def _known_profile(cls, value: str | None) -> str | None:
+        if value is not None and value not in PROFILES:
+            raise ValueError(
+                f"unknown radio profile {value!r}; known: {', '.join(sorted(PROFILES))}"
+            )
         return value
 
-
-class LockstepPacer:
-    """Holds lockstep ticks back so simulated time runs at most `max_speed` times the wall clock.
-
-    A run that falls behind (slow robots) carries on from where it is at the same pace; it does
-    not run faster to catch up. `wait_until` is called with a timeout in seconds and returns
-    early (True) when the run is being stopped."""
-
-    def __init__(
-        self,
-        max_speed: float | None,
-        wait_until: Callable[[float], bool],
-        clock_s: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self.max_speed = max_speed
-        self._wait = wait_until
-        self._clock_s = clock_s
-        self._start_s: float | None = None
-
-    def before_tick(self, sim_t_ns: int) -> None:
-        """Wait until the tick that starts at `sim_t_ns` is due (the first one starts the clock)."""
-        if self.max_speed is None:
-            return
-        now_s = self._clock_s()
-        wall_offset_s = sim_t_ns / NS_PER_S / self.max_speed
-        due_s = now_s if self._start_s is None else self._start_s + wall_offset_s
-        if due_s > now_s:
-            self._wait(due_s - now_s)
-        else:  # behind (or the first tick): start the pace from here, never catch up faster
-            self._start_s = now_s - wall_offset_s
+    @model_validator(mode="after")
+    def _max_speed_needs_lockstep(self) -> WorldConfig:
+        if self.max_speed is not None and not self.lockstep:
+            raise ValueError("max_speed applies to lockstep runs only (real time runs at 1)")
+        return self
 
 
 class WorldProcess:
@@ -136,8 +146,7 @@ class WorldProcess:
         self.period_ns = round(scenario.controller_params().control_period_s * NS_PER_S)
         self.duty = np.zeros((len(self.names), 4))
         self.act_seen_mono_ns = np.full(len(self.names), -(10**18), dtype=np.int64)
-        self.act_tick = np.full(len(self.names), -1, dtype=np.int64)
-        self.live: set[str] = set()
+        self.barrier = LockstepBarrier(self.names)
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
@@ -147,16 +156,22 @@ class WorldProcess:
         self.malformed_acts = 0
         self.malformed_telemetry = 0
         self.unknown_senders = 0
-        self.frames_owed = np.zeros(len(self.names), dtype=np.int64)
-        self.first_tick_owed = np.zeros(len(self.names), dtype=np.int64)
         self._catch_up: Callable[[int], None] | None = None
         self._held_frames: list[tuple[int, bytes]] = []
-        self.timing: dict[str, dict[str, Any]] = {}
-        self.tick = 0
+        self.timing: dict[str, LoopTimingReport] = {}
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._clock_started_mono_s: float | None = None
         self.rule_count_total = int(np.asarray(load_rule_base(scenario).rule_count)) * len(
             self.names
         )
+
+    @property
+    def tick(self) -> int:
+        return self.barrier.tick
+
+    @property
+    def live(self) -> frozenset[str]:
+        return self.barrier.live()
 
     # -- callbacks -----------------------------------------------------------------------
 
@@ -175,12 +190,11 @@ class WorldProcess:
         self._wake.set()
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
-        try:
-            data = json.loads(sample.payload.to_bytes())
-            if isinstance(data, dict) and isinstance(data.get("timing"), dict):
-                self.timing[str(data.get("robot"))] = data["timing"]
-        except (ValueError, UnicodeDecodeError):
+        telemetry = parse_message(TelemetryMessage, sample.payload.to_bytes())
+        if telemetry is None or telemetry.robot not in self.index:
             self.malformed_telemetry += 1
+        elif telemetry.timing is not None:
+            self.timing[telemetry.robot] = telemetry.timing
 
     # -- queues, drained by the main loop ------------------------------------------------
 
@@ -190,14 +204,11 @@ class WorldProcess:
                 name, alive = self._liveliness.get_nowait()
             except queue.Empty:
                 break
-            i = self.index.get(name)
-            if i is not None:
-                (self.live.add if alive else self.live.discard)(name)
+            if name in self.index:
                 # A robot that (re)joins starts with a clean slate and is waited for from the
                 # next tick on: the sense message of the current tick may have gone out before
                 # it was listening.
-                self.frames_owed[i] = 0
-                self.first_tick_owed[i] = self.tick + 1
+                (self.barrier.join if alive else self.barrier.leave)(name)
                 log.info("robot %s %s", name, "joined" if alive else "left")
         while True:
             try:
@@ -223,17 +234,12 @@ class WorldProcess:
                 self.unknown_senders += 1
                 continue
             frames.append((j, payload))
-            self.frames_owed[j] -= 1
+            self.barrier.frame(sender)
         # Deterministic order within one step: by sender index, then arrival.
         self._held_frames.extend(frames)
         if not self.config.lockstep:
             self._transmit_held()
         self._serve_queries()
-
-    def _owes_tick(self, i: int) -> bool:
-        if self.first_tick_owed[i] > self.tick:
-            return False
-        return bool(self.act_tick[i] < self.tick or self.frames_owed[i] > 0)
 
     def _transmit_held(self) -> None:
         for j, payload in sorted(self._held_frames, key=lambda item: item[0]):
@@ -241,10 +247,9 @@ class WorldProcess:
         self._held_frames.clear()
 
     def _apply_act(self, i: int, act: ActMessage, arrival_mono_ns: int) -> None:
-        self.frames_owed[i] += act.radio_frames
+        self.barrier.act(self.names[i], act.tick, act.radio_frames)
         self.duty[i] = np.where(act.enabled, act.duty, 0.0)
         self.act_seen_mono_ns[i] = arrival_mono_ns
-        self.act_tick[i] = act.tick
 
     def _publish_sense(self, lockstep: bool, delivered: list[int]) -> None:
         for i, (name, message) in enumerate(zip(self.names, self.engine.sense(), strict=True)):
@@ -264,10 +269,13 @@ class WorldProcess:
             delivered[receiver] += 1
         return delivered
 
+    def _dead(self) -> np.ndarray:
+        live = self.live
+        return np.array([name not in live for name in self.names])
+
     def _braked_duty(self, now_mono_ns: int) -> np.ndarray:
         stale = now_mono_ns - self.act_seen_mono_ns > self.config.act_timeout_ms * 1e6
-        dead = np.array([name not in self.live for name in self.names])
-        return np.where((stale | dead)[:, None], 0.0, self.duty)
+        return np.where((stale | self._dead())[:, None], 0.0, self.duty)
 
     # -- main loop -------------------------------------------------------------------------
 
@@ -321,8 +329,8 @@ class WorldProcess:
                 break
             self._wake.wait(0.05)
             self._wake.clear()
-        # Robots that joined before time started are listening: they owe tick 0 already.
-        self.first_tick_owed[:] = 0
+        self.barrier.start()
+        self._clock_started_mono_s = time.monotonic()
         next_summary = time.monotonic() + self.config.summary_every_s
         pacer = LockstepPacer(self.config.max_speed, self._wait_serving_queries)
         while not self.stop.is_set() and (end is None or self.tick < end):
@@ -332,19 +340,16 @@ class WorldProcess:
             clock_pub.put(
                 encode_clock(ClockMessage(self.tick, self.engine.t_ns, self.period_ns, True))
             )
-            waiting = {n for n in self.live if self._owes_tick(self.index[n])}
-            while waiting and not self.stop.is_set():
+            # A robot is done with this tick when its act has come, and the frames it
+            # announced in it too.
+            while not self.barrier.complete() and not self.stop.is_set():
                 self._wake.wait(0.05)
                 self._wake.clear()
                 self._drain()
-                # A robot is done with this tick when its act has come, and the frames it
-                # announced in it too.
-                waiting = {n for n in self.live if self._owes_tick(self.index[n])}
             self._drain()
             self._transmit_held()
-            dead = np.array([name not in self.live for name in self.names])
-            self.engine.advance(np.where(dead[:, None], 0.0, self.duty), self.period_ns)
-            self.tick += 1
+            self.engine.advance(np.where(self._dead()[:, None], 0.0, self.duty), self.period_ns)
+            self.barrier.advance()
             self._publish_truth(truth_pub)
             if time.monotonic() >= next_summary:
                 next_summary += self.config.summary_every_s
@@ -358,6 +363,7 @@ class WorldProcess:
         `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost."""
         end = self._end_tick()
         start = time.monotonic_ns()
+        self._clock_started_mono_s = start / NS_PER_S
         next_summary = time.monotonic() + self.config.summary_every_s
         next_sense_ns = 0
 
@@ -391,7 +397,7 @@ class WorldProcess:
                             ClockMessage(self.tick, self.engine.t_ns, self.period_ns, False)
                         )
                     )
-                    self.tick += 1
+                    self.barrier.advance()
                     next_sense_ns += self.period_ns
                     self._publish_truth(truth_pub)
                 else:
@@ -409,21 +415,21 @@ class WorldProcess:
             return
         engine = self.engine
         reference, _ = engine.trajectory.evaluate(engine.t_s)
-        truth = {
-            "t_s": engine.t_s,
-            "tick": self.tick,
-            "robots": {
-                name: {
-                    "pose": [float(v) for v in engine.bodies.pose[i]],
-                    "alive": name in self.live,
-                }
+        live = self.live
+        truth = TruthMessage(
+            t_s=engine.t_s,
+            tick=self.tick,
+            robots={
+                name: RobotTruth(
+                    pose=tuple(float(v) for v in engine.bodies.pose[i]), alive=name in live
+                )
                 for i, name in enumerate(self.names)
             },
-            "reference": [float(v) for v in reference],
+            reference=tuple(float(v) for v in reference),
             # Latency percentiles cost a sort: refreshed about once a second.
-            "radio": self.radio_stats(percentiles=self.tick % (20 * every) == 0),
-        }
-        truth_pub.put(json.dumps(truth).encode())
+            radio=self.radio_stats(percentiles=self.tick % (20 * every) == 0),
+        )
+        truth_pub.put(truth.to_json_bytes())
 
     def current_position_errors(self) -> dict[str, float]:
         """Each robot's distance from its reference now (trajectory or slot, DESIGN.md §8)."""
@@ -440,21 +446,28 @@ class WorldProcess:
             for i, name in enumerate(self.names)
         }
 
-    def radio_stats(self, percentiles: bool = True) -> dict[str, Any]:
+    def radio_stats(self, percentiles: bool = True) -> RadioStats:
         radio = self.engine.radio
         p50 = radio.latency_percentile_ms(50) if percentiles else None
         p99 = radio.latency_percentile_ms(99) if percentiles else None
         frames = radio.delivered + radio.dropped
-        return {
-            "profile": self.engine.link.model_dump(exclude_none=True),
-            "broadcasts": radio.sent,
-            "frames": frames,
-            "delivered": radio.delivered,
-            "dropped": radio.dropped,
-            "delivery_ratio": None if frames == 0 else round(radio.delivered / frames, 6),
-            "latency_p50_ms": None if p50 is None else round(p50, 3),
-            "latency_p99_ms": None if p99 is None else round(p99, 3),
-        }
+        return RadioStats(
+            profile=self.engine.link,
+            broadcasts=radio.sent,
+            frames=frames,
+            delivered=radio.delivered,
+            dropped=radio.dropped,
+            delivery_ratio=None if frames == 0 else round(radio.delivered / frames, 6),
+            latency_p50_ms=None if p50 is None else round(p50, 3),
+            latency_p99_ms=None if p99 is None else round(p99, 3),
+        )
+
+    def real_time_factor(self) -> float | None:
+        """Simulated seconds per wall second since time started (None before it starts)."""
+        if self._clock_started_mono_s is None:
+            return None
+        wall_s = time.monotonic() - self._clock_started_mono_s
+        return round(self.engine.t_s / wall_s, 4) if wall_s > 0 else None
 
     def summary(self) -> dict[str, object]:
         scenario = self.scenario.model_copy(update={"duration_s": max(self.engine.t_s, 1e-9)})
@@ -464,12 +477,19 @@ class WorldProcess:
             self.engine.summary(),
             scenario.controller_params().fuzzy_enabled,
             self.rule_count_total,
-            radio["broadcasts"],
-            radio["delivered"],
+            radio.broadcasts,
+            radio.delivered,
         )
-        summary["radio"] = {"profile_name": str(self.scenario.radio.profile), **radio}
+        radio_summary = radio.model_dump(mode="json")
+        radio_summary["profile"] = radio.profile.model_dump(exclude_none=True)
+        summary["radio"] = {"profile_name": str(self.scenario.radio.profile), **radio_summary}
         summary["clock_mode"] = "lockstep" if self.config.lockstep else "real_time"
-        summary["control_timing"] = {name: self.timing.get(name) for name in self.names}
+        if not self.config.lockstep:  # a lockstep summary holds no wall-clock figure
+            summary["real_time_factor"] = self.real_time_factor()
+        summary["control_timing"] = {
+            name: None if (timing := self.timing.get(name)) is None else timing.model_dump()
+            for name in self.names
+        }
         summary["malformed_acts"] = self.malformed_acts
         summary["malformed_telemetry"] = self.malformed_telemetry
         return summary
@@ -490,44 +510,51 @@ class WorldProcess:
     def _serve_queries(self) -> None:
         self._admin.serve({"net": self._net_request, "status": lambda _body: self._status()})
 
-    def _status(self) -> dict[str, Any]:
-        return {
-            "ok": True,
-            "t_s": self.engine.t_s,
-            "tick": self.tick,
-            "clock_mode": "lockstep" if self.config.lockstep else "real_time",
-            "live": sorted(self.live),
-            "robots": list(self.names),
-            "radio": self.radio_stats(),
-            "metrics": self.engine.summary(),
-            "position_errors_m": self.current_position_errors(),
-            "lockstep_owed": {
-                name: {
-                    "live": name in self.live,
-                    "last_act_tick": int(self.act_tick[i]),
-                    "frames_owed": int(self.frames_owed[i]),
-                    "owes_from_tick": int(self.first_tick_owed[i]),
-                }
-                for i, name in enumerate(self.names)
+    def _status(self) -> WorldStatusReply:
+        return WorldStatusReply(
+            t_s=self.engine.t_s,
+            tick=self.tick,
+            clock_mode="lockstep" if self.config.lockstep else "real_time",
+            real_time_factor=self.real_time_factor(),
+            live=tuple(sorted(self.live)),
+            robots=self.names,
+            radio=self.radio_stats(),
+            metrics=RunMetrics.model_validate(self.engine.summary()),
+            position_errors_m=self.current_position_errors(),
+            lockstep_owed={
+                name: LockstepSeat(
+                    live=seat.live,
+                    last_act_tick=seat.last_act_tick,
+                    frames_owed=seat.frames_owed,
+                    owes_from_tick=seat.owes_from_tick,
+                )
+                for name, seat in self.barrier.seats.items()
             },
-        }
+        )
 
-    def _net_request(self, payload: bytes) -> dict[str, Any]:
+    def _net_request(self, payload: bytes) -> NetReply | AdminError:
+        """Get the link profile (empty body), switch to a named one ({"profile": NAME}), or
+        change some of its fields ({"loss": 0.2, ...}); a bad request changes nothing."""
         if not payload:
-            return {"ok": True, "profile": self.engine.link.model_dump(exclude_none=True)}
+            return NetReply(profile=self.engine.link)
         try:
             request = json.loads(payload)
-            if isinstance(request, dict) and set(request) == {"profile"}:
-                name = request["profile"]
+        except (ValueError, UnicodeDecodeError) as exc:
+            return AdminError(error=f"invalid network profile: not JSON: {exc}")
+        if not isinstance(request, dict):
+            return AdminError(error="invalid network profile: the request must be a JSON object")
+        try:
+            if "profile" in request:
+                name = NetProfileRequest.model_validate(request).profile
                 if name not in PROFILES:
                     known = ", ".join(sorted(PROFILES))
-                    return {"ok": False, "error": f"unknown profile {name!r}; known: {known}"}
+                    return AdminError(error=f"unknown profile {name!r}; known: {known}")
                 profile = PROFILES[name]
             else:
                 merged = {**self.engine.link.model_dump(exclude_none=True), **request}
                 profile = LinkProfile.model_validate(merged)
-        except (ValueError, TypeError, ValidationError) as exc:
-            return {"ok": False, "error": f"invalid network profile: {exc}"}
+        except ValidationError as exc:
+            return AdminError(error=describe_validation_error("invalid network profile", exc))
         self.engine.link = profile
         log.info("radio profile set to %s", profile.model_dump(exclude_none=True))
-        return {"ok": True, "profile": profile.model_dump(exclude_none=True)}
+        return NetReply(profile=profile)

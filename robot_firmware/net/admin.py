@@ -1,23 +1,32 @@
-"""Admin queries (`swarm/<swarm>/admin/<target>/<verb>`), answered from the owner's own loop.
+"""Admin queries (`swarm/<swarm>/admin/<target>/<verb>`): served from the owner's own loop, and
+asked from anywhere with `admin_request`.
 
 Zenoh callbacks must not block, so the queryable's callback only queues the query; the process
 that owns the state (a robot between control ticks, the world between steps, the launcher)
-calls `serve` with one handler per verb.  A handler takes the request body and returns a JSON-able
-reply; an unknown verb gets an error reply naming the known ones.
+calls `serve` with one handler per verb.  A handler takes the request body and returns a reply
+model of `robot_firmware/net/messages.py`; an unknown verb gets an `AdminError` naming the known
+ones, and a handler that fails is answered with an `AdminError` too (logged, never a crash).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import queue
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TypeVar
 
 import zenoh
+from pydantic import BaseModel
 
 from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.messages import AdminError, parse_reply
+from robot_firmware.net.session import open_client
 
-Handler = Callable[[bytes], dict[str, Any]]
+log = logging.getLogger("swarm.admin")
+
+Handler = Callable[[bytes], BaseModel]
+R = TypeVar("R", bound=BaseModel)
 
 
 class AdminQueue:
@@ -38,14 +47,62 @@ class AdminQueue:
                 return served
             verb = SwarmKeys.last_chunk(str(query.key_expr))
             body = query.payload.to_bytes() if query.payload is not None else b""
-            handler = handlers.get(verb)
-            if handler is None:
-                known = ", ".join(sorted(handlers))
-                reply: dict[str, Any] = {
-                    "ok": False,
-                    "error": f"unknown admin verb {verb!r}; use {known}",
-                }
-            else:
-                reply = handler(body)
-            query.reply(query.key_expr, json.dumps(reply).encode())
+            query.reply(query.key_expr, answer(handlers, verb, body).model_dump_json().encode())
             served += 1
+
+
+def answer(handlers: Mapping[str, Handler], verb: str, body: bytes) -> BaseModel:
+    """The reply to one admin request (pure: what `serve` sends back)."""
+    handler = handlers.get(verb)
+    if handler is None:
+        return AdminError(error=f"unknown admin verb {verb!r}; use {', '.join(sorted(handlers))}")
+    try:
+        return handler(body)
+    except Exception as exc:  # a bug in a handler must not take the process down
+        log.exception("admin verb %r failed", verb)
+        return AdminError(error=f"{verb} failed inside the process: {type(exc).__name__}: {exc}")
+
+
+def ask(
+    swarm: str,
+    endpoint: str,
+    target: str,
+    verb: str,
+    body: BaseModel | bytes | None = None,
+    timeout_s: float = 3.0,
+) -> bytes | None:
+    """Send one admin request to a running swarm; the reply's payload, or None when nobody
+    answered.  body: a request model, raw bytes (e.g. a parameter file), or None."""
+    keys = SwarmKeys(swarm)
+    payload = body.model_dump_json().encode() if isinstance(body, BaseModel) else body
+    with open_client([endpoint]) as session:
+        replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
+        for reply in replies:
+            if reply.ok is not None:
+                return bytes(reply.ok.payload.to_bytes())
+    return None
+
+
+def admin_request(
+    swarm: str,
+    endpoint: str,
+    target: str,
+    verb: str,
+    reply_type: type[R],
+    body: BaseModel | bytes | None = None,
+    timeout_s: float = 3.0,
+) -> R | AdminError | None:
+    """Ask a running swarm's process one admin question: the reply as `reply_type`, an
+    `AdminError` when the process refused, or None when nobody answered (or the answer fits
+    neither)."""
+    payload = ask(swarm, endpoint, target, verb, body, timeout_s)
+    return None if payload is None else parse_reply(reply_type, payload)
+
+
+def reply_as_json(payload: bytes) -> dict[str, object] | None:
+    """Any admin reply as a JSON object (for printing), None when it is not one."""
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return data if isinstance(data, dict) else None

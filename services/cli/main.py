@@ -13,13 +13,16 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TypeVar
 
-from pydantic import ValidationError
+from pydantic import BaseModel
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
-from swarm_config.scenario import ScenarioError, load_scenario
+from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
+from swarm_config.settings import LayeredSettings, SettingsError
 
 EXIT_USAGE = 2
 
@@ -28,7 +31,7 @@ class UsageError(Exception):
     """A user mistake or an unreachable swarm, reported in one line without a traceback."""
 
 
-DEFAULT_SCENARIO = "configs/scenarios/paper.yaml"
+DEFAULT_SCENARIO = str(DEFAULT_SCENARIO_PATH)
 MAX_SPEED_HELP = (
     "with --lockstep: run at most X simulated seconds per wall second, e.g. 1 to watch a "
     "deterministic run at real speed (default: as fast as the robots answer)"
@@ -52,18 +55,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     )
     s = outputs.summary
     print(f"scenario {s['scenario']} (seed {s['seed']}, {s['duration_s']} s, {s['controller']})")
-    print(
-        f"  leader tracking RMS   {_cm(s['leader_tracking_rms_m'])}  (nominal samples, t >= "
-        f"{s['steady_state_start_s']} s)"
-    )
-    formation = s["formation_rms_m"]
-    assert isinstance(formation, dict)
-    for name, value in formation.items():
-        print(f"  formation RMS {name:<7} {_cm(value)}")
-    print(
-        f"  min obstacle clearance {_cm(s['min_obstacle_clearance_m'])}, "
-        f"min robot separation {_cm(s['min_robot_separation_m'])}, collisions {s['collisions']}"
-    )
+    _print_headline(s)
     comparison = s.get("comparison")
     if isinstance(comparison, dict):
         for label, entry in comparison.items():
@@ -92,28 +84,24 @@ def _cmd_router(args: argparse.Namespace) -> int:
 def _cmd_world(args: argparse.Namespace) -> int:
     from world.runtime import WorldConfig, WorldProcess
 
-    scenario_path = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
-    scenario = load_scenario(scenario_path)
-    try:
-        config = WorldConfig(
-            swarm=args.swarm or os.environ.get("SWARM_NAME", "lab"),
-            scenario=scenario_path,
-            connect=_endpoints(args.connect),
-            lockstep=args.lockstep,
-            duration_s=args.duration,
-            out_dir=Path(args.out) if args.out else None,
-            radio_profile=args.radio,
-            max_speed=args.max_speed,
-        )
-    except ValidationError as exc:
-        raise UsageError(_validation_message("world", exc)) from None
-    world = WorldProcess(config, scenario)
+    given = {
+        "swarm": args.swarm,
+        "scenario": args.scenario,
+        "connect": split_endpoints(args.connect) if args.connect else None,
+        "lockstep": True if args.lockstep else None,
+        "duration_s": args.duration,
+        "out_dir": args.out,
+        "radio_profile": args.radio,
+        "max_speed": args.max_speed,
+    }
+    config = _settings(WorldConfig, given, args.config)
+    world = WorldProcess(config, load_scenario(config.scenario))
     _install_stop(world.stop)
     return world.run()
 
 
 def _cmd_robot(args: argparse.Namespace) -> int:
-    from robot_firmware.runtime import RobotConfig, RobotProcess, describe_config_error
+    from robot_firmware.runtime import RobotConfig, RobotProcess
 
     given = {
         "name": args.name,
@@ -121,40 +109,56 @@ def _cmd_robot(args: argparse.Namespace) -> int:
         "scenario": args.scenario,
         "connect": split_endpoints(args.connect) if args.connect else None,
     }
-    try:
-        config = RobotConfig.from_sources(
-            given, config_file=Path(args.config) if args.config else None
-        )
-    except ValidationError as exc:
-        raise UsageError(describe_config_error(exc)) from None
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    robot = RobotProcess(config)
+    robot = RobotProcess(_settings(RobotConfig, given, args.config))
     _install_stop(robot.stop)
     return robot.run()
 
 
+S = TypeVar("S", bound=LayeredSettings)
+
+
+def _settings(kind: type[S], given: dict[str, object], config_file: str | None) -> S:
+    """A process's settings from its YAML file, the environment and the flags; a bad one is
+    a usage error naming the field (and its variable)."""
+    try:
+        return kind.from_sources(given, config_file=Path(config_file) if config_file else None)
+    except SettingsError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _cmd_up(args: argparse.Namespace) -> int:
     from services.launcher.launcher import Launcher, LaunchPlan
+    from world.runtime import WorldConfig
 
-    if args.max_speed is not None and not args.lockstep:
-        raise UsageError("--max-speed applies to --lockstep runs only (real time runs at 1)")
-    if args.max_speed is not None and not args.max_speed > 0:
-        raise UsageError(f"--max-speed must be positive, got {args.max_speed}")
-    scenario_path = Path(args.scenario)
-    scenario = load_scenario(scenario_path)
-    out_dir = Path(args.out)
     endpoint = f"tcp/127.0.0.1:{args.port}"
+    # The world's settings, validated here once so that a mistake stops `swarm up` before
+    # anything starts; the world process is given exactly these.
+    world = _settings(
+        WorldConfig,
+        {
+            "swarm": args.swarm,
+            "scenario": args.scenario,
+            "connect": [endpoint],
+            "lockstep": True if args.lockstep else None,
+            "duration_s": args.duration,
+            "out_dir": args.out,
+            "radio_profile": args.radio,
+            "max_speed": args.max_speed,
+        },
+        None,
+    )
+    scenario = load_scenario(world.scenario)
+    out_dir = Path(args.out)
     plan = LaunchPlan(
-        scenario=scenario_path,
+        scenario=world.scenario,
         robots=scenario.robot_names,
         out_dir=out_dir,
-        swarm=args.swarm,
+        swarm=world.swarm,
         endpoint=endpoint,
-        lockstep=args.lockstep,
-        max_speed=args.max_speed,
-        duration_s=args.duration,
-        radio_profile=args.radio,
+        lockstep=world.lockstep,
+        max_speed=world.max_speed,
+        duration_s=world.duration_s,
+        radio_profile=world.radio_profile,
         dashboard=not args.no_dashboard,
         web_port=args.web_port,
         grpc_port=args.grpc_port,
@@ -163,10 +167,10 @@ def _cmd_up(args: argparse.Namespace) -> int:
     _install_stop(launcher.stop)
 
     def ready() -> None:
-        mode = "lockstep" if args.lockstep else "real time"
-        length = f"{args.duration} s" if args.duration else "until Ctrl-C"
+        mode = "lockstep" if plan.lockstep else "real time"
+        length = f"{plan.duration_s} s" if plan.duration_s else "until Ctrl-C"
         print(
-            f"swarm {args.swarm}: {', '.join(scenario.robot_names)} on {endpoint} "
+            f"swarm {plan.swarm}: {', '.join(scenario.robot_names)} on {endpoint} "
             f"({mode}, {length})",
             flush=True,
         )
@@ -185,58 +189,98 @@ def _cmd_up(args: argparse.Namespace) -> int:
             flush=True,
         )
 
+    started_s = time.monotonic()
     code = launcher.up(on_ready=ready)
-    summary = out_dir / "summary.json"
-    if summary.exists():
-        print(f"wrote {summary}")
+    wall_s = time.monotonic() - started_s
+    summary_path = out_dir / "summary.json"
+    try:
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        print(f"no readable {summary_path}: see {out_dir / 'logs'}/world.log", file=sys.stderr)
+        return code or 1
+    factor = summary.get("real_time_factor")
+    if factor is None:  # lockstep: the speed-up over real time, start-up included
+        factor = summary["duration_s"] / max(wall_s, 1e-9)
+    print(
+        f"ran {summary['duration_s']:.1f} simulated s in {wall_s:.1f} s of wall time "
+        f"({summary['clock_mode'].replace('_', ' ')}; real-time factor {factor:.2f})"
+    )
+    _print_headline(summary)
+    timings = summary.get("control_timing") or {}
+    for name, timing in timings.items() if summary["clock_mode"] == "real_time" else ():
+        if timing:
+            print(
+                f"  {name:<7} {timing['deadline_misses']} of {timing['ticks']} control "
+                "deadlines missed"
+            )
+    print(f"wrote {summary_path}")
     return code
 
 
-def _admin(
-    args: argparse.Namespace, target: str, verb: str, body: dict[str, object] | None
-) -> dict[str, object]:
-    return _admin_raw(args, target, verb, None if body is None else json.dumps(body).encode())
+def _print_headline(s: dict[str, object]) -> None:
+    """The run's headline figures from its summary.json (docs/summary-schema.md)."""
+    print(
+        f"  leader tracking RMS   {_cm(s['leader_tracking_rms_m'])}  (nominal samples, t >= "
+        f"{s['steady_state_start_s']} s)"
+    )
+    formation = s["formation_rms_m"]
+    assert isinstance(formation, dict)
+    for name, value in formation.items():
+        print(f"  formation RMS {name:<7} {_cm(value)}")
+    print(
+        f"  min obstacle clearance {_cm(s['min_obstacle_clearance_m'])}, "
+        f"min robot separation {_cm(s['min_robot_separation_m'])}, collisions {s['collisions']}"
+    )
 
 
-def _admin_raw(
-    args: argparse.Namespace, target: str, verb: str, body: bytes | None
-) -> dict[str, object]:
-    from services.launcher.launcher import admin_request
+def _ask(args: argparse.Namespace, target: str, verb: str, body: BaseModel | bytes | None) -> bytes:
+    from robot_firmware.net.admin import ask
 
     endpoint = _endpoints(args.connect)[0]
-    reply = admin_request(args.swarm, endpoint, target, verb, body, timeout_s=args.timeout)
-    if reply is None:
+    swarm = _swarm(args)
+    payload = ask(swarm, endpoint, target, verb, body, timeout_s=args.timeout)
+    if payload is None:
         raise UsageError(
-            f"no answer from {target} of swarm {args.swarm!r} at {endpoint} "
+            f"no answer from {target} of swarm {swarm!r} at {endpoint} "
             f"(is it running? start one with `swarm up`)"
         )
-    return reply
+    return payload
 
 
-def _print_reply(reply: dict[str, object]) -> int:
+def _print_reply(payload: bytes) -> int:
+    """Print an admin reply as indented JSON; exit status 1 when it is a refusal."""
+    from robot_firmware.net.admin import reply_as_json
+
+    reply = reply_as_json(payload)
+    if reply is None:
+        raise UsageError(f"the answer is not a JSON object: {payload[:200]!r}")
     print(json.dumps(reply, indent=2))
-    return 0 if reply.get("ok") else 1
+    return 0 if reply.get("ok") is True else 1
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
-    return _print_reply(_admin(args, "launcher", "status", None))
+    return _print_reply(_ask(args, "launcher", "status", None))
 
 
 def _cmd_kill(args: argparse.Namespace) -> int:
-    return _print_reply(_admin(args, "launcher", "kill", {"robot": args.robot}))
+    from robot_firmware.net.messages import RobotRequest
+
+    return _print_reply(_ask(args, "launcher", "kill", RobotRequest(robot=args.robot)))
 
 
 def _cmd_restart(args: argparse.Namespace) -> int:
-    return _print_reply(_admin(args, "launcher", "restart", {"robot": args.robot}))
+    from robot_firmware.net.messages import RobotRequest
+
+    return _print_reply(_ask(args, "launcher", "restart", RobotRequest(robot=args.robot)))
 
 
 def _cmd_net(args: argparse.Namespace) -> int:
-    body: dict[str, object] | None = None
+    body: bytes | None = None
     if args.action == "set":
         if args.profile:
-            body = {"profile": args.profile}
+            changes: dict[str, object] = {"profile": args.profile}
         else:
-            body = {
+            changes = {
                 key: value
                 for key, value in (
                     ("latency_ms", args.latency_ms),
@@ -245,34 +289,48 @@ def _cmd_net(args: argparse.Namespace) -> int:
                 )
                 if value is not None
             }
-            if not body:
-                raise ScenarioError(
+            if not changes:
+                raise UsageError(
                     "net set: give --profile or at least one of --latency-ms, --jitter-ms, --loss"
                 )
-    return _print_reply(_admin(args, "world", "net", body))
+        body = json.dumps(changes).encode()
+    return _print_reply(_ask(args, "world", "net", body))
 
 
 def _cmd_regs(args: argparse.Namespace) -> int:
+    from robot_firmware.net.messages import (
+        AdminError,
+        RegsAccessReply,
+        RegsDumpReply,
+        RegsRequest,
+        parse_reply,
+    )
+
     if args.address is None:
-        body: dict[str, object] = {"op": "dump"}
+        request = RegsRequest(op="dump")
     elif args.value is None:
-        body = {"op": "read", "address": args.address}
+        request = RegsRequest(op="read", address=args.address)
     else:
-        body = {"op": "write", "address": args.address, "value": args.value}
-    reply = _admin(args, args.robot, "regs", body)
-    if not reply.get("ok"):
-        print(f"swarm regs: {reply.get('error')}", file=sys.stderr)
+        request = RegsRequest(op="write", address=args.address, value=args.value)
+    payload = _ask(args, args.robot, "regs", request)
+    reply: RegsDumpReply | RegsAccessReply | AdminError | None
+    if request.op == "dump":
+        reply = parse_reply(RegsDumpReply, payload)
+    else:
+        reply = parse_reply(RegsAccessReply, payload)
+    if reply is None:
+        raise UsageError(f"{args.robot} answered something that is not a regs reply")
+    if isinstance(reply, AdminError):
+        print(f"swarm regs: {reply.error}", file=sys.stderr)
         return 1
-    if "registers" in reply:
-        rows = reply["registers"]
-        assert isinstance(rows, list)
-        for row in rows:
+    if isinstance(reply, RegsDumpReply):
+        for row in reply.registers:
             print(
-                f"0x{row['address']:08X}  {row['peripheral'] + '.' + row['register']:<28} "
-                f"{row['access']:<4} 0x{row['value']:08X}"
+                f"0x{row.address:08X}  {row.peripheral + '.' + row.name:<28} "
+                f"{row.access:<4} 0x{row.value:08X}"
             )
     else:
-        print(f"0x{reply['address']:08X}  {reply.get('name')}  0x{reply['value']:08X}")
+        print(f"0x{reply.address:08X}  {reply.name}  0x{reply.value:08X}")
     return 0
 
 
@@ -283,7 +341,7 @@ def _cmd_params(args: argparse.Namespace) -> int:
             body = Path(args.file).read_bytes()
         except OSError as exc:
             raise UsageError(f"cannot read {args.file} ({exc.strerror})") from None
-    return _print_reply(_admin_raw(args, args.robot, "params", body))
+    return _print_reply(_ask(args, args.robot, "params", body))
 
 
 def _int_literal(text: str) -> int:
@@ -299,11 +357,9 @@ def _endpoints(given: str | None) -> list[str]:
     return split_endpoints(given or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT))
 
 
-def _validation_message(what: str, error: ValidationError) -> str:
-    lines = [f"invalid {what} settings:"]
-    for item in error.errors(include_url=False):
-        lines.append(f"  {'.'.join(str(p) for p in item['loc'])}: {item['msg']}")
-    return "\n".join(lines)
+def _swarm(args: argparse.Namespace) -> str:
+    swarm: str = args.swarm or os.environ.get("SWARM_NAME") or "lab"
+    return swarm
 
 
 def _cm(value: object) -> str:
@@ -344,8 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     def swarm_options(p: argparse.ArgumentParser) -> None:
         p.add_argument(
             "--swarm",
-            default=os.environ.get("SWARM_NAME", "lab"),
-            help="swarm name, the first chunk of every key (default: lab, $SWARM_NAME)",
+            help="swarm name, the first chunk of every key (default: $SWARM_NAME, else lab)",
         )
         p.add_argument(
             "--connect",
@@ -377,9 +432,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.add_argument(
         "--scenario",
-        default=DEFAULT_SCENARIO,
         metavar="FILE",
-        help=f"scenario YAML (default: {DEFAULT_SCENARIO})",
+        help=f"scenario YAML (default: $SWARM_SCENARIO, else {DEFAULT_SCENARIO})",
     )
     up.add_argument(
         "--duration",
@@ -407,7 +461,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="run directory for logs and summary.json (default: runs/swarm)",
     )
     up.add_argument("--radio", metavar="PROFILE", help="radio profile to start with")
-    up.add_argument("--swarm", default="lab", help="swarm name (default: lab)")
+    up.add_argument(
+        "--swarm", help="swarm name, the first chunk of every key (default: $SWARM_NAME, else lab)"
+    )
     up.add_argument("--port", type=int, default=7447, help="router TCP port on 127.0.0.1")
     up.set_defaults(handler=_cmd_up)
 
@@ -476,8 +532,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the world process (physics, sensors, radio medium)",
         description="The world process of a swarm; `swarm up` starts it for you.",
     )
-    world.add_argument("--scenario", metavar="FILE", help="scenario YAML ($SWARM_SCENARIO)")
-    world.add_argument("--lockstep", action="store_true")
+    world.add_argument(
+        "--config",
+        metavar="FILE",
+        help="YAML file with world settings (any field of WorldConfig: scenario, lockstep, "
+        "duration_s, act_timeout_ms, truth_rate_hz, ...); environment and flags override it",
+    )
+    world.add_argument(
+        "--scenario",
+        metavar="FILE",
+        help=f"scenario YAML (default: $SWARM_SCENARIO, else {DEFAULT_SCENARIO})",
+    )
+    world.add_argument(
+        "--lockstep", action="store_true", help="wait for every live robot each tick"
+    )
     world.add_argument("--max-speed", type=float, metavar="X", help=MAX_SPEED_HELP)
     world.add_argument("--duration", type=float, metavar="S")
     world.add_argument("--out", metavar="DIR", help="where to write summary.json")

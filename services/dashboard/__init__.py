@@ -2,6 +2,6 @@
 
 `cli` holds the `swarm dashboard` and `swarm replay` subcommands, `live` the Zenoh-to-Rerun
 service, `scene` the pure mapping from truth and telemetry to Rerun records, `blueprint` the
-default layout, `entities` every entity path, `messages` the payloads read, `replay` the
-serving of a recorded file.
+default layout, `entities` every entity path, `replay` the serving of a recorded file.  The
+payloads it reads are the swarm's typed messages (`robot_firmware/net/messages.py`).
 """

@@ -35,10 +35,10 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.messages import TelemetryMessage, TruthMessage, parse_message
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
-from services.dashboard.messages import parse_telemetry, parse_truth
 from services.dashboard.scene import SwarmScene, Update
 from swarm_config.scenario import Scenario
 
@@ -211,10 +211,10 @@ class DashboardService:
             self._log(recording, self.scene.on_liveliness(role, name, sample.alive))
             return
         if sample.kind == "truth":
-            truth = parse_truth(sample.payload)
+            truth = parse_message(TruthMessage, sample.payload)
             update = None if truth is None else self.scene.on_truth(truth)
         else:
-            telemetry = parse_telemetry(sample.payload)
+            telemetry = parse_message(TelemetryMessage, sample.payload)
             update = None if telemetry is None else self.scene.on_telemetry(telemetry)
         if update is None:
             self.counts["rejected"] += 1

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from robot_firmware.net.messages import TelemetryMessage, TruthMessage
 from services.dashboard import entities
-from services.dashboard.messages import TelemetryMessage, TruthMessage
 from swarm_config.scenario import Scenario
 from world.metrics import FormationLayout, reference_points, sample_errors
 

@@ -17,7 +17,6 @@ The process factory is injectable so tests can substitute their own.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import signal
@@ -28,12 +27,23 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 from urllib.parse import quote
+
+from pydantic import ValidationError
 
 from robot_firmware.net.admin import AdminQueue
 from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.messages import (
+    AdminError,
+    KillReply,
+    LauncherStatusReply,
+    ProcessStatus,
+    RestartReply,
+    RobotRequest,
+)
 from robot_firmware.net.session import open_client
+from swarm_config.settings import describe_validation_error
 
 log = logging.getLogger("swarm.launcher")
 
@@ -170,41 +180,48 @@ class Launcher:
         self.children[name].restarts += 1
         self.start(name)
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> dict[str, ProcessStatus]:
         return {
-            name: {
-                "pid": child.process.pid if child.process else None,
-                "running": child.running,
-                "exit_code": None
+            name: ProcessStatus(
+                pid=child.process.pid if child.process else None,
+                running=child.running,
+                exit_code=None
                 if child.process is None or child.running
                 else child.process.returncode,
-                "killed": child.killed,
-                "restarts": child.restarts,
-                "log": str(child.log_path),
-            }
+                killed=child.killed,
+                restarts=child.restarts,
+                log=str(child.log_path),
+            )
             for name, child in self.children.items()
         }
 
-    def _robot_request(self, verb: str, body: bytes) -> dict[str, Any]:
+    def _robot_named(self, body: bytes) -> str | AdminError:
         try:
-            request = json.loads(body) if body else {}
-        except ValueError:
-            request = None
-        name = request.get("robot") if isinstance(request, dict) else None
-        if not isinstance(name, str) or name not in self.plan.robots:
-            return {"ok": False, "error": f"no robot {name!r}; robots: {list(self.plan.robots)}"}
-        if verb == "kill":
-            return {"ok": True, "killed": self.kill(name)}
+            name = RobotRequest.model_validate_json(body).robot
+        except ValidationError as exc:
+            return AdminError(error=describe_validation_error("invalid request", exc))
+        if name not in self.plan.robots:
+            return AdminError(error=f"no robot {name!r}; robots: {', '.join(self.plan.robots)}")
+        return name
+
+    def _kill_request(self, body: bytes) -> KillReply | AdminError:
+        name = self._robot_named(body)
+        return name if isinstance(name, AdminError) else KillReply(killed=self.kill(name))
+
+    def _restart_request(self, body: bytes) -> RestartReply | AdminError:
+        name = self._robot_named(body)
+        if isinstance(name, AdminError):
+            return name
         self.restart(name)
         process = self.children[name].process
-        return {"ok": True, "restarted": name, "pid": process.pid if process else None}
+        return RestartReply(restarted=name, pid=process.pid if process else None)
 
     def _serve(self) -> None:
         self._admin.serve(
             {
-                "status": lambda _body: {"ok": True, "processes": self.status()},
-                "kill": lambda body: self._robot_request("kill", body),
-                "restart": lambda body: self._robot_request("restart", body),
+                "status": lambda _body: LauncherStatusReply(processes=self.status()),
+                "kill": self._kill_request,
+                "restart": self._restart_request,
             }
         )
 
@@ -255,26 +272,3 @@ class Launcher:
             if child.log_file is not None:
                 child.log_file.close()
                 child.log_file = None
-
-
-def admin_request(
-    swarm: str,
-    endpoint: str,
-    target: str,
-    verb: str,
-    body: dict[str, Any] | bytes | None = None,
-    timeout_s: float = 3.0,
-) -> dict[str, Any] | None:
-    """Ask a running swarm's process one admin question; None when nobody answers.
-
-    body: a JSON-able dict, raw bytes, or None for a bare query.
-    """
-    keys = SwarmKeys(swarm)
-    with open_client([endpoint]) as session:
-        payload = json.dumps(body).encode() if isinstance(body, dict) else body
-        replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
-        for reply in replies:
-            if reply.ok is not None:
-                data = json.loads(reply.ok.payload.to_bytes())
-                return data if isinstance(data, dict) else {"ok": False, "error": "bad reply"}
-    return None

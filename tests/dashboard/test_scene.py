@@ -11,10 +11,10 @@ import pytest
 import rerun as rr
 
 from robot_firmware.control.formation import follower_slot_in_world
+from robot_firmware.net.messages import TelemetryMessage, TruthMessage, parse_message
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.live import keep_previous_recording, viewer_url
-from services.dashboard.messages import TruthMessage, parse_telemetry, parse_truth
 from services.dashboard.scene import DOWN_COLOUR, ROBOT_COLOURS, LogRecord, SwarmScene, Update
 from swarm_config.scenario import Scenario, load_scenario
 from world.metrics import FormationLayout
@@ -54,7 +54,7 @@ def _truth(
     payload = {"t_s": t_s, "tick": 0, "robots": robots, "reference": [float(v) for v in leader]}
     if radio is not None:
         payload["radio"] = radio
-    message = parse_truth(json.dumps(payload).encode())
+    message = parse_message(TruthMessage, json.dumps(payload).encode())
     assert message is not None
     return message
 
@@ -146,14 +146,14 @@ def test_gains_come_from_telemetry_at_its_own_time(scenario: Scenario) -> None:
         "kd": [0.15, 0.1, 0.125],
         "frames": {"accepted": 3},
     }
-    telemetry = parse_telemetry(json.dumps(payload).encode())
+    telemetry = parse_message(TelemetryMessage, json.dumps(payload).encode())
     assert telemetry is not None
     update = scene.on_telemetry(telemetry)
     assert update is not None and update.t_s == 4.25
     assert _scalars(update, entities.gain("kp", "robot2")) == [6.0, 4.0, 5.0]
     assert _scalars(update, entities.gain("kd", "robot2")) == [0.15, 0.1, 0.125]
     assert entities.estimate("robot2") in update.paths()
-    stranger = parse_telemetry(json.dumps({**payload, "robot": "robot9"}).encode())
+    stranger = parse_message(TelemetryMessage, json.dumps({**payload, "robot": "robot9"}).encode())
     assert stranger is not None and scene.on_telemetry(stranger) is None
     assert scene.unknown_robots == {"robot9"}
 
@@ -166,7 +166,7 @@ def test_sonar_echoes_are_rays_from_the_estimated_position(scenario: Scenario) -
         "estimate": [1.0, 2.0, 0.5],
         "sonar_echoes_m": [[1.5, 2.0], [1.0, 2.75]],
     }
-    telemetry = parse_telemetry(json.dumps(payload).encode())
+    telemetry = parse_message(TelemetryMessage, json.dumps(payload).encode())
     assert telemetry is not None
     sweep = _record(scene.on_telemetry(telemetry), entities.sonar("robot1"))
     rays = _archetype(sweep, rr.LineStrips2D).strips.as_arrow_array().to_pylist()
@@ -177,13 +177,14 @@ def test_sonar_echoes_are_rays_from_the_estimated_position(scenario: Scenario) -
     echoes = _archetype(sweep, rr.Points2D).positions.as_arrow_array().to_pylist()
     assert [list(p) for p in echoes] == [[1.5, 2.0], [1.0, 2.75]]
 
-    silent = parse_telemetry(json.dumps({**payload, "sonar_echoes_m": []}).encode())
+    silent = parse_message(TelemetryMessage, json.dumps({**payload, "sonar_echoes_m": []}).encode())
     assert silent is not None
     cleared = _record(scene.on_telemetry(silent), entities.sonar("robot1"))
     assert _archetype(cleared, rr.LineStrips2D).strips.as_arrow_array().to_pylist() == []
 
-    older = parse_telemetry(
-        json.dumps({k: v for k, v in payload.items() if k != "sonar_echoes_m"}).encode()
+    older = parse_message(
+        TelemetryMessage,
+        json.dumps({k: v for k, v in payload.items() if k != "sonar_echoes_m"}).encode(),
     )
     assert older is not None
     update = scene.on_telemetry(older)
@@ -206,14 +207,15 @@ def test_processes_joining_and_leaving_are_events_at_the_newest_sim_time(
 
 
 def test_payloads_that_do_not_fit_are_rejected(scenario: Scenario) -> None:
-    assert parse_truth(b"not json") is None
-    assert parse_truth(b'{"t_s": 1.0, "robots": {}}') is None  # no reference
-    assert parse_telemetry(b'{"robot": "robot1"}') is None  # no t_s
+    assert parse_message(TruthMessage, b"not json") is None
+    assert parse_message(TruthMessage, b'{"t_s": 1.0, "robots": {}}') is None  # no reference
+    assert parse_message(TelemetryMessage, b'{"robot": "robot1"}') is None  # no t_s
     scene = SwarmScene(scenario)
-    partial = parse_truth(
+    partial = parse_message(
+        TruthMessage,
         json.dumps(
             {"t_s": 1.0, "robots": {"robot1": {"pose": [0, 0, 0]}}, "reference": [0, 0, 0]}
-        ).encode()
+        ).encode(),
     )
     assert partial is not None and scene.on_truth(partial) is None
     assert scene.rejected_truth == 1

@@ -1,4 +1,5 @@
-"""Lockstep pacing (`--max-speed`): ticks wait for their wall-clock time, never run early."""
+"""The lockstep barrier (every transition of world/lockstep.py's table) and pacing
+(`--max-speed`: ticks wait for their wall-clock time, never run early)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,112 @@ import pytest
 from pydantic import ValidationError
 
 from world.engine import NS_PER_S
-from world.runtime import LockstepPacer, WorldConfig
+from world.lockstep import LockstepBarrier, LockstepPacer
+from world.runtime import WorldConfig
 
 PERIOD_NS = 10_000_000
+ROBOTS = ("robot1", "robot2", "robot3")
+
+
+def started_barrier() -> LockstepBarrier:
+    """Three robots that joined before time started."""
+    barrier = LockstepBarrier(ROBOTS)
+    for name in ROBOTS:
+        barrier.join(name)
+    barrier.start()
+    return barrier
+
+
+def test_nobody_is_waited_for_before_anyone_joins() -> None:
+    barrier = LockstepBarrier(ROBOTS)
+    assert barrier.live() == frozenset() and barrier.waiting() == frozenset()
+    assert barrier.complete()
+
+
+def test_robots_that_joined_before_time_started_owe_tick_zero() -> None:
+    barrier = LockstepBarrier(ROBOTS)
+    barrier.join("robot1")
+    assert barrier.waiting() == frozenset()  # joined: owes from the next tick only ...
+    barrier.start()
+    assert barrier.waiting() == {"robot1"}  # ... unless time starts now
+
+
+def test_a_tick_completes_when_every_live_robot_has_acted() -> None:
+    barrier = started_barrier()
+    assert barrier.waiting() == set(ROBOTS)
+    barrier.act("robot1", 0, 0)
+    barrier.act("robot3", 0, 0)
+    assert barrier.waiting() == {"robot2"}
+    barrier.act("robot2", 0, 0)
+    assert barrier.complete()
+    barrier.advance()
+    assert barrier.tick == 1 and barrier.waiting() == set(ROBOTS)
+
+
+def test_an_act_for_an_older_tick_does_not_answer_this_one() -> None:
+    barrier = started_barrier()
+    for name in ROBOTS:
+        barrier.act(name, 0, 0)
+    barrier.advance()
+    barrier.act("robot1", 0, 0)  # a late duplicate of tick 0
+    assert "robot1" in barrier.waiting()
+    barrier.act("robot1", 1, 0)
+    assert "robot1" not in barrier.waiting()
+
+
+def test_announced_frames_are_waited_for_after_the_act() -> None:
+    barrier = started_barrier()
+    barrier.act("robot1", 0, 2)
+    barrier.act("robot2", 0, 0)
+    barrier.act("robot3", 0, 0)
+    assert barrier.waiting() == {"robot1"}
+    barrier.frame("robot1")
+    assert barrier.waiting() == {"robot1"}
+    barrier.frame("robot1")
+    assert barrier.complete()
+    assert barrier.seats["robot1"].frames_owed == 0
+
+
+def test_a_frame_that_overtakes_its_act_is_counted_all_the_same() -> None:
+    barrier = started_barrier()
+    barrier.frame("robot1")  # the frame arrived before the act that announces it
+    assert barrier.seats["robot1"].frames_owed == -1
+    barrier.act("robot1", 0, 1)
+    assert "robot1" not in barrier.waiting()
+
+
+def test_a_robot_that_leaves_is_not_waited_for() -> None:
+    barrier = started_barrier()
+    barrier.act("robot1", 0, 3)  # frames still owed when it dies
+    barrier.leave("robot1")
+    assert barrier.live() == {"robot2", "robot3"}
+    assert barrier.waiting() == {"robot2", "robot3"}
+    barrier.act("robot2", 0, 0)
+    barrier.act("robot3", 0, 0)
+    assert barrier.complete()
+
+
+def test_a_robot_that_rejoins_is_waited_for_from_the_next_tick_with_a_clean_slate() -> None:
+    barrier = started_barrier()
+    barrier.act("robot2", 0, 5)
+    barrier.leave("robot2")
+    barrier.join("robot2")  # back during tick 0: its sense message may have been missed
+    assert barrier.seats["robot2"].frames_owed == 0
+    assert "robot2" not in barrier.waiting()
+    barrier.act("robot1", 0, 0)
+    barrier.act("robot3", 0, 0)
+    assert barrier.complete()
+    barrier.advance()
+    assert "robot2" in barrier.waiting()  # tick 1: owed again
+    barrier.act("robot2", 1, 0)
+    assert "robot2" not in barrier.waiting()
+
+
+def test_a_dead_robot_never_blocks_even_if_its_acts_still_arrive() -> None:
+    barrier = started_barrier()
+    barrier.leave("robot3")
+    barrier.act("robot3", 0, 4)  # a late act from before the power cut
+    assert "robot3" not in barrier.waiting()
 
 
 class FakeClock:

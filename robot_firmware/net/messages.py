@@ -1,0 +1,349 @@
+"""Every JSON message of the swarm, as pydantic models: one module, imported by producers and
+consumers alike (DESIGN.md §3: configs and admin payloads are pydantic models).
+
+Binary wire formats (sense, act, clock, radio frames) live in `wire.py` and `frames.py`; the
+JSON ones are here:
+
+| key                                   | producer  | model                                  |
+|---------------------------------------|-----------|----------------------------------------|
+| `truth`                               | world     | `TruthMessage`                         |
+| `telemetry/<robot>`                   | robot     | `TelemetryMessage`                     |
+| `admin/<robot>/status`                | robot     | `RobotStatusReply`                     |
+| `admin/<robot>/regs`                  | robot     | `RegsRequest` -> `RegsReply`           |
+| `admin/<robot>/params`                | robot     | fuzzy parameter file -> `ParamsReply`  |
+| `admin/world/status`                  | world     | `WorldStatusReply`                     |
+| `admin/world/net`                     | world     | `NetProfileRequest` or a partial       |
+|                                       |           | `LinkProfile` -> `NetReply`            |
+| `admin/launcher/status`               | launcher  | `LauncherStatusReply`                  |
+| `admin/launcher/kill`                 | launcher  | `RobotRequest` -> `KillReply`          |
+| `admin/launcher/restart`              | launcher  | `RobotRequest` -> `RestartReply`       |
+
+Every admin reply is either its verb's reply model (`ok` true) or an `AdminError` (`ok` false,
+with the reason).  Readers tolerate fields they do not know (`extra="ignore"`), so a producer may
+add a field without breaking older consumers; a payload that is not JSON or misses a required
+field is refused as a whole (`parse_message` returns None, and the reader counts it).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from swarm_config.radio import LinkProfile
+
+Pose = tuple[float, float, float]
+"""x_m, y_m, theta_rad."""
+Axes = tuple[float, float, float]
+"""One value per axis of eq. 14: x, y, theta."""
+
+Role = Literal["leader", "follower"]
+
+
+class Message(BaseModel):
+    """Base of every JSON message: immutable, unknown fields ignored when read."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    def to_json_bytes(self) -> bytes:
+        return self.model_dump_json().encode()
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def parse_message(model: type[M], payload: bytes | str) -> M | None:
+    """The payload as `model`, or None when it is not JSON or does not fit the model."""
+    try:
+        return model.model_validate(json.loads(payload))
+    except (ValueError, UnicodeDecodeError, ValidationError):
+        return None
+
+
+# -- robot -> viewers ---------------------------------------------------------------------------
+
+
+class LoopTimingReport(Message):
+    """Control-loop period jitter and deadline misses of one robot (DESIGN.md §8, timing)."""
+
+    ticks: int = Field(ge=0)
+    deadline_misses: int = Field(ge=0)
+    period_jitter_p99_ms: float | None = None
+    recent_miss_ticks: tuple[int, ...] = ()
+    """Tick numbers of the last few misses."""
+
+
+class TelemetryMessage(Message):
+    """`swarm/<swarm>/telemetry/<robot>`: what one robot's firmware reports about itself.
+
+    The control fields (desired ... active) are absent before the first control tick."""
+
+    robot: str
+    t_s: float
+    role: Role | None = None
+    localised: bool = False
+    estimate: Pose | None = None
+    frames: dict[str, int] = Field(default_factory=dict)
+    """The frame decoder's counters: accepted, and every drop under its reason."""
+    bus_errors: int = 0
+    malformed_sense: int = 0
+    timing: LoopTimingReport | None = None
+    sonar_range_m: tuple[float | None, ...] = ()
+    """Per transducer: the gap to the nearest echo, None when nothing was heard."""
+    sonar_echoes_m: tuple[tuple[float, float], ...] | None = None
+    """Where the last sonar sweep puts echoes, [x_m, y_m] in the world seen from the estimated
+    pose, one per transducer that heard one."""
+    desired: Pose | None = None
+    error: Pose | None = None
+    delta_k: Axes | None = None
+    kp: Axes | None = None
+    ki: Axes | None = None
+    kd: Axes | None = None
+    """Gains of the redundant PID law (eq. 14) per axis, as the fuzzy scheduler (Table 2) sets
+    them."""
+    repulsion_mps: tuple[float, float] | None = None
+    wheel_speed_radps: tuple[float, float, float, float] | None = None
+    active: bool | None = None
+
+
+# -- world -> viewers ---------------------------------------------------------------------------
+
+
+class RobotTruth(Message):
+    pose: Pose
+    alive: bool = True
+
+
+class RadioStats(Message):
+    """The radio medium's counters since the world started."""
+
+    profile: LinkProfile = LinkProfile()
+    broadcasts: int = 0
+    frames: int = 0
+    delivered: int = 0
+    dropped: int = 0
+    delivery_ratio: float | None = None
+    latency_p50_ms: float | None = None
+    latency_p99_ms: float | None = None
+
+
+class TruthMessage(Message):
+    """`swarm/<swarm>/truth`: ground truth at one simulation instant."""
+
+    t_s: float
+    tick: int = 0
+    robots: dict[str, RobotTruth]
+    reference: Pose
+    """The leader's reference pose from the trajectory at t_s."""
+    radio: RadioStats = RadioStats()
+
+
+# -- admin: common ------------------------------------------------------------------------------
+
+
+class AdminError(Message):
+    """Any admin verb's refusal: nothing was changed."""
+
+    ok: Literal[False] = False
+    error: str
+
+
+class AdminOk(Message):
+    ok: Literal[True] = True
+
+
+# -- admin: robot -------------------------------------------------------------------------------
+
+
+class RobotStatusReply(TelemetryMessage):
+    """`admin/<robot>/status`: the robot's telemetry, now."""
+
+    ok: Literal[True] = True
+
+
+class RegsRequest(Message):
+    """`admin/<robot>/regs`: like `devmem`. An empty body is a dump."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    op: Literal["dump", "read", "write"] = "dump"
+    address: Annotated[int, Field(ge=0, le=0xFFFF_FFFF, strict=True)] | None = None
+    value: Annotated[int, Field(ge=0, le=0xFFFF_FFFF, strict=True)] | None = None
+
+
+class RegisterRow(Message):
+    address: int
+    peripheral: str
+    name: str
+    """The register's name within its peripheral."""
+    access: str
+    value: int
+
+
+class RegsDumpReply(AdminOk):
+    registers: tuple[RegisterRow, ...]
+
+
+class RegsAccessReply(AdminOk):
+    address: int
+    value: int
+    name: str | None = None
+    """peripheral.register at the address."""
+
+
+class RegsBusError(AdminError):
+    """A refused register access, reported as the bus error it is."""
+
+    address: int
+
+
+RegsReply = RegsDumpReply | RegsAccessReply | RegsBusError | AdminError
+
+
+class ParamsReply(AdminOk):
+    """`admin/<robot>/params`: the fuzzy scheduler's parameters (a FuzzyParameters mapping),
+    or, after a replacement, the new rule count."""
+
+    parameters: dict[str, object] | None = None
+    rule_count: int | None = None
+
+
+# -- admin: world -------------------------------------------------------------------------------
+
+
+class LockstepSeat(Message):
+    """One robot's place at the lockstep barrier (world/lockstep.py)."""
+
+    live: bool
+    last_act_tick: int
+    frames_owed: int
+    owes_from_tick: int
+
+
+class RunMetrics(Message):
+    """The run's metrics so far (DESIGN.md §8), as in summary.json."""
+
+    leader: str
+    leader_tracking_rms_m: float | None = None
+    leader_tracking_rms_all_m: float | None = None
+    leader_heading_rms_rad: float | None = None
+    leader_heading_rms_all_rad: float | None = None
+    formation_rms_m: dict[str, float | None] = Field(default_factory=dict)
+    formation_rms_all_m: dict[str, float | None] = Field(default_factory=dict)
+    formation_max_m: float | None = None
+    formation_max_all_m: float | None = None
+    nominal_share: dict[str, float | None] = Field(default_factory=dict)
+    min_robot_separation_m: float | None = None
+    min_obstacle_clearance_m: float | None = None
+    collisions: int = 0
+    mean_abs_error_sum: float | None = None
+
+
+ClockMode = Literal["lockstep", "real_time"]
+
+
+class WorldStatusReply(AdminOk):
+    """`admin/world/status`."""
+
+    t_s: float
+    tick: int
+    clock_mode: ClockMode
+    real_time_factor: float | None = None
+    """Simulated seconds per wall second since time started."""
+    live: tuple[str, ...]
+    robots: tuple[str, ...]
+    radio: RadioStats
+    metrics: RunMetrics
+    position_errors_m: dict[str, float]
+    """Each robot's distance from its reference now (trajectory or slot, DESIGN.md §8)."""
+    lockstep_owed: dict[str, LockstepSeat]
+
+
+class NetProfileRequest(Message):
+    """`admin/world/net` by name: one of the named link profiles."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    profile: str
+
+
+class NetReply(AdminOk):
+    profile: LinkProfile
+
+
+# -- admin: launcher ----------------------------------------------------------------------------
+
+
+class ProcessStatus(Message):
+    pid: int | None
+    running: bool
+    exit_code: int | None
+    killed: bool
+    restarts: int
+    log: str
+
+
+class LauncherStatusReply(AdminOk):
+    """`admin/launcher/status`: the processes `swarm up` supervises."""
+
+    processes: dict[str, ProcessStatus]
+
+
+class RobotRequest(Message):
+    """`admin/launcher/kill` and `.../restart`: which robot."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    robot: str
+
+
+class KillReply(AdminOk):
+    killed: bool
+    """False when the robot was not running."""
+
+
+class RestartReply(AdminOk):
+    restarted: str
+    pid: int | None
+
+
+AdminReply = (
+    RobotStatusReply
+    | RegsDumpReply
+    | RegsAccessReply
+    | ParamsReply
+    | WorldStatusReply
+    | NetReply
+    | LauncherStatusReply
+    | KillReply
+    | RestartReply
+    | AdminError
+)
+
+
+def parse_reply(model: type[M], payload: bytes) -> M | AdminError | None:
+    """An admin reply: `model` when ok, `AdminError` when refused, None when it fits neither."""
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    if isinstance(data, dict) and data.get("ok") is False:
+        try:
+            return AdminError.model_validate(data)
+        except ValidationError:
+            return None
+    try:
+        return model.model_validate(data)
+    except ValidationError:
+        return None
+
+
+_ANY_REGS_REPLY: TypeAdapter[RegsReply] = TypeAdapter(RegsReply)
+
+
+def parse_regs_reply(payload: bytes) -> RegsReply | None:
+    try:
+        return _ANY_REGS_REPLY.validate_json(payload)
+    except ValidationError:
+        return None

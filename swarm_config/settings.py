@@ -1,0 +1,91 @@
+"""Process settings, one way for every process: a YAML file, then the environment, then flags.
+
+`LayeredSettings.from_sources` merges the three sources, lowest priority first, and validates the
+result once; `describe_validation_error` is the project's one formatter of pydantic errors
+for users: each problem on its own line, with the field's dotted path and, where the field can
+come from the environment, its variable.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, ClassVar, Self
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+
+def describe_validation_error(
+    heading: str, error: ValidationError, env: Mapping[str, str] | None = None
+) -> str:
+    """'heading (N problems):' then one line per problem: 'field.path (or $VAR): message'."""
+    count = error.error_count()
+    lines = [f"{heading} ({count} problem{'s' if count != 1 else ''}):"]
+    for item in error.errors(include_url=False):
+        where = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        var = env.get(str(item["loc"][0])) if env and item["loc"] else None
+        hint = f" (or ${var})" if var else ""
+        lines.append(f"  {where}{hint}: {item['msg']}")
+    return "\n".join(lines)
+
+
+class SettingsError(ValueError):
+    """Settings that cannot be used; the message names the field (and its variable)."""
+
+
+def read_yaml_mapping(path: Path, what: str) -> dict[str, Any]:
+    """A YAML file that must hold a mapping (empty file: {}); SettingsError otherwise."""
+    try:
+        loaded = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise SettingsError(f"{path}: cannot read ({exc.strerror})") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise SettingsError(f"{path}: not valid YAML: {exc}") from None
+    if loaded is None:
+        return {}
+    if not isinstance(loaded, dict):
+        raise SettingsError(f"{path}: {what} must be a YAML mapping")
+    return loaded
+
+
+class LayeredSettings(BaseModel):
+    """Base of a process's settings.  Subclasses name their environment variables in `ENV`
+    (field -> variable) and may parse a variable's text in `ENV_PARSERS`."""
+
+    ENV: ClassVar[Mapping[str, str]] = {}
+    ENV_ALIASES: ClassVar[Mapping[str, str]] = {}
+    """Field -> a second variable read when the first is unset (e.g. ROBOT_ID)."""
+    ENV_PARSERS: ClassVar[Mapping[str, Callable[[str], object]]] = {}
+    WHAT: ClassVar[str] = "settings"
+
+    @classmethod
+    def from_sources(
+        cls,
+        given: Mapping[str, Any],
+        environ: Mapping[str, str] | None = None,
+        config_file: Path | None = None,
+    ) -> Self:
+        """Settings from a YAML file, then environment variables, then `given` (the command
+        line; None values are not given), each overriding the one before.
+
+        Raises SettingsError naming every bad field (and its variable)."""
+        env = os.environ if environ is None else environ
+        values: dict[str, Any] = {}
+        if config_file is not None:
+            values.update(read_yaml_mapping(config_file, cls.WHAT))
+        for key, var in cls.ENV.items():
+            raw = env.get(var)
+            if not raw and key in cls.ENV_ALIASES:
+                raw = env.get(cls.ENV_ALIASES[key])
+            if raw:
+                parse = cls.ENV_PARSERS.get(key)
+                values[key] = parse(raw) if parse is not None else raw
+        values.update({k: v for k, v in given.items() if v is not None})
+        try:
+            return cls.model_validate(values)
+        except ValidationError as exc:
+            raise SettingsError(
+                describe_validation_error(f"invalid {cls.WHAT}", exc, cls.ENV)
+            ) from None

@@ -1,0 +1,119 @@
+"""Admin requests and replies: the typed messages, the verb dispatcher and the `regs` handler,
+without a network."""
+
+from __future__ import annotations
+
+import json
+
+from pydantic import BaseModel
+
+from robot_firmware.fpga.address_map import BRIDGE_BASE
+from robot_firmware.fpga.fabric import Fabric
+from robot_firmware.net.admin import answer, reply_as_json
+from robot_firmware.net.messages import (
+    AdminError,
+    KillReply,
+    RegsAccessReply,
+    RegsBusError,
+    RegsDumpReply,
+    TelemetryMessage,
+    WorldStatusReply,
+    parse_message,
+    parse_reply,
+)
+from robot_firmware.regs_admin import handle_regs_request
+
+SYSID_ID = BRIDGE_BASE  # the system ID IP sits first in the map
+SYSID_SCRATCH = BRIDGE_BASE + 0x10
+
+
+def test_an_unknown_verb_is_refused_naming_the_known_ones() -> None:
+    reply = answer({"status": lambda _b: KillReply(killed=True)}, "reboot", b"")
+    assert isinstance(reply, AdminError)
+    assert "'reboot'" in reply.error and "status" in reply.error
+
+
+def test_a_failing_handler_is_answered_with_an_error_not_a_crash() -> None:
+    def broken(_body: bytes) -> BaseModel:
+        raise ZeroDivisionError("division by zero")
+
+    reply = answer({"status": broken}, "status", b"")
+    assert isinstance(reply, AdminError)
+    assert "ZeroDivisionError" in reply.error
+
+
+def test_replies_parse_as_their_model_or_as_a_refusal() -> None:
+    ok = KillReply(killed=False).to_json_bytes()
+    assert parse_reply(KillReply, ok) == KillReply(killed=False)
+    refused = AdminError(error="no robot 'robot9'").to_json_bytes()
+    assert parse_reply(KillReply, refused) == AdminError(error="no robot 'robot9'")
+    assert parse_reply(KillReply, b"not json") is None
+    assert parse_reply(WorldStatusReply, ok) is None  # an ok reply of another verb
+    assert reply_as_json(ok) == {"ok": True, "killed": False}
+    assert reply_as_json(b"[1, 2]") is None
+
+
+def test_telemetry_round_trips_and_tolerates_fields_it_does_not_know() -> None:
+    message = TelemetryMessage(
+        robot="robot2", t_s=1.5, role="follower", estimate=(1.0, 2.0, 0.5), kp=(1.0, 2.0, 3.0)
+    )
+    assert parse_message(TelemetryMessage, message.to_json_bytes()) == message
+    newer = json.loads(message.to_json_bytes())
+    newer["battery_v"] = 11.9
+    assert parse_message(TelemetryMessage, json.dumps(newer)) == message
+    assert parse_message(TelemetryMessage, b'{"robot": "robot2"}') is None  # no t_s
+    assert parse_message(TelemetryMessage, b"\xff\xfe") is None
+
+
+def regs(fabric: Fabric, body: object) -> BaseModel:
+    payload = body if isinstance(body, bytes) else json.dumps(body).encode()
+    return handle_regs_request(fabric.bus, payload)
+
+
+def test_regs_dump_lists_every_register_by_name() -> None:
+    fabric = Fabric()
+    dump = regs(fabric, b"")
+    assert isinstance(dump, RegsDumpReply)
+    first = dump.registers[0]
+    assert (first.address, first.peripheral, first.name) == (SYSID_ID, "sysid", "ID")
+    assert first.value == 0x5357_524D
+    assert len({row.address for row in dump.registers}) == len(dump.registers)
+
+
+def test_regs_read_and_write_are_real_bus_accesses() -> None:
+    fabric = Fabric()
+    written = regs(fabric, {"op": "write", "address": SYSID_SCRATCH, "value": 0xCAFE})
+    assert written == RegsAccessReply(address=SYSID_SCRATCH, value=0xCAFE, name="sysid.SCRATCH")
+    read = regs(fabric, {"op": "read", "address": SYSID_SCRATCH})
+    assert isinstance(read, RegsAccessReply) and read.value == 0xCAFE
+
+
+def test_a_refused_access_is_a_bus_error_and_changes_nothing() -> None:
+    fabric = Fabric()
+    before = regs(fabric, {"op": "read", "address": SYSID_ID})
+    refused = regs(fabric, {"op": "write", "address": SYSID_ID, "value": 0})
+    assert isinstance(refused, RegsBusError) and "bus error" in refused.error
+    assert regs(fabric, {"op": "read", "address": SYSID_ID}) == before
+    unmapped = regs(fabric, {"op": "read", "address": BRIDGE_BASE + 0xF_FF00})
+    assert isinstance(unmapped, RegsBusError)
+
+
+def test_malformed_regs_requests_are_refused_with_the_field_named() -> None:
+    fabric = Fabric()
+    for body, words in [
+        (b"{not json", "invalid regs request"),
+        ({"op": "poke", "address": SYSID_ID}, "op"),
+        ({"op": "read"}, "needs an 'address'"),
+        ({"op": "write", "address": SYSID_SCRATCH}, "needs a 'value'"),
+        ({"op": "read", "address": -4}, "address"),
+        ({"op": "read", "address": "0xFF200000"}, "address"),
+        ({"op": "write", "address": SYSID_SCRATCH, "value": True}, "value"),
+        ({"op": "write", "address": SYSID_SCRATCH, "value": 2**40}, "value"),
+        ({"op": "read", "address": SYSID_ID, "force": True}, "force"),
+    ]:
+        reply = regs(fabric, body)
+        assert isinstance(reply, AdminError), body
+        assert words in reply.error, (body, reply.error)
+    assert regs(fabric, {"op": "read", "address": SYSID_SCRATCH}) == RegsAccessReply(
+        address=SYSID_SCRATCH, value=0, name="sysid.SCRATCH"
+    )

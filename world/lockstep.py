@@ -1,0 +1,122 @@
+"""Lockstep clock: the barrier that waits for every live robot each tick, and the pacer.
+
+Both are pure state machines: no Zenoh, no threads, and time only as an argument, so every
+transition is tested without a network (tests/world/test_lockstep.py).  The world process
+(`world/runtime.py`) feeds them what arrives and asks them what to do.
+
+**Barrier.**  Per control period the world publishes tick k's sense messages, then waits until
+every live robot has answered tick k with its act message *and* the radio frames that act
+announced have arrived.  Each robot has a seat:
+
+| event                     | seat after it                                                 |
+|---------------------------|---------------------------------------------------------------|
+| `join` (token appears)    | live; owes nothing before tick k+1 (tick k's sense message may |
+|                           | have gone out before it listened); frames owed reset           |
+| `leave` (token gone)      | not live: never waited for; frames owed reset                  |
+| `start` (time starts)     | robots that joined before time started owe tick 0 already      |
+| `act(tick, frames)`       | last act tick = tick; frames owed += frames                    |
+| `frame`                   | frames owed -= 1                                               |
+
+A live seat owes tick k when k >= its first owed tick and either its last act is older than k
+or frames it announced are still to come.  The tick completes when no live seat owes it.
+
+**Pacer.**  With `max_speed` set, holds ticks back so simulated time runs at most `max_speed`
+times the wall clock; a run that falls behind carries on at the same pace from where it is.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+NS_PER_S = 1_000_000_000
+
+
+@dataclass
+class Seat:
+    """One robot's place at the barrier."""
+
+    live: bool = False
+    last_act_tick: int = -1
+    frames_owed: int = 0
+    owes_from_tick: int = 0
+
+    def owes(self, tick: int) -> bool:
+        if not self.live or self.owes_from_tick > tick:
+            return False
+        return self.last_act_tick < tick or self.frames_owed > 0
+
+
+class LockstepBarrier:
+    """Who the world still waits for at each tick (the table in the module docstring)."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.names = tuple(names)
+        self.seats = {name: Seat() for name in self.names}
+        self.tick = 0
+
+    def join(self, name: str) -> None:
+        self.seats[name] = Seat(live=True, owes_from_tick=self.tick + 1)
+
+    def leave(self, name: str) -> None:
+        self.seats[name] = Seat(live=False, owes_from_tick=self.tick + 1)
+
+    def start(self) -> None:
+        """Time starts at the current tick: robots already live owe it."""
+        for seat in self.seats.values():
+            seat.owes_from_tick = min(seat.owes_from_tick, self.tick)
+
+    def act(self, name: str, tick: int, radio_frames: int) -> None:
+        seat = self.seats[name]
+        seat.frames_owed += radio_frames
+        seat.last_act_tick = tick
+
+    def frame(self, name: str) -> None:
+        self.seats[name].frames_owed -= 1
+
+    def live(self) -> frozenset[str]:
+        return frozenset(n for n, s in self.seats.items() if s.live)
+
+    def waiting(self) -> frozenset[str]:
+        """The live robots the current tick still waits for."""
+        return frozenset(n for n, s in self.seats.items() if s.owes(self.tick))
+
+    def complete(self) -> bool:
+        return not self.waiting()
+
+    def advance(self) -> int:
+        """The current tick is done (whether or not it was complete): on to the next."""
+        self.tick += 1
+        return self.tick
+
+
+class LockstepPacer:
+    """Holds lockstep ticks back so simulated time runs at most `max_speed` times the wall clock.
+
+    A run that falls behind (slow robots) carries on from where it is at the same pace; it does
+    not run faster to catch up. `wait_until` is called with a timeout in seconds and returns
+    early (True) when the run is being stopped."""
+
+    def __init__(
+        self,
+        max_speed: float | None,
+        wait_until: Callable[[float], bool],
+        clock_s: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.max_speed = max_speed
+        self._wait = wait_until
+        self._clock_s = clock_s
+        self._start_s: float | None = None
+
+    def before_tick(self, sim_t_ns: int) -> None:
+        """Wait until the tick that starts at `sim_t_ns` is due (the first one starts the clock)."""
+        if self.max_speed is None:
+            return
+        now_s = self._clock_s()
+        wall_offset_s = sim_t_ns / NS_PER_S / self.max_speed
+        due_s = now_s if self._start_s is None else self._start_s + wall_offset_s
+        if due_s > now_s:
+            self._wait(due_s - now_s)
+        else:  # behind (or the first tick): start the pace from here, never catch up faster
+            self._start_s = now_s - wall_offset_s
