@@ -45,6 +45,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
+from pydantic import ValidationError
+
+from robot_firmware.net.messages import LoopTimingReport
 from tests.support.compose_host import http_status
 from tests.support.waiting import wait_for
 
@@ -75,15 +78,9 @@ def _number(value: object, what: str) -> float:
     return float(value)
 
 
-def _number_map(value: object, what: str) -> dict[str, float]:
-    if not isinstance(value, Mapping):
-        raise CheckFailedError(f"no map for {what}: {value!r}")
-    return {str(name): _number(v, f"{what}[{name}]") for name, v in value.items()}
-
-
 @dataclass(frozen=True)
 class WorldStatus:
-    """The fields of the world's admin status reply that the checks use."""
+    """The fields of the world's admin status reply (`WorldStatusReply`) that the checks use."""
 
     t_s: float
     live: tuple[str, ...]
@@ -104,22 +101,21 @@ class WorldStatus:
     @classmethod
     def from_reply(cls, reply: Mapping[str, object] | None) -> WorldStatus | None:
         """None for no answer or a refusal; CheckFailedError for a reply that does not fit."""
+        from robot_firmware.net.messages import WorldStatusReply
+
         if reply is None or reply.get("ok") is not True:
             return None
-        metrics = reply.get("metrics")
-        live = reply.get("live")
         try:
-            if not isinstance(metrics, Mapping) or not isinstance(live, list | tuple):
-                raise CheckFailedError("no 'metrics' map or no 'live' list")
-            return cls(
-                t_s=_number(reply.get("t_s"), "t_s"),
-                live=tuple(str(name) for name in live),
-                position_errors_m=_number_map(reply.get("position_errors_m"), "position_errors_m"),
-                collisions=int(_number(metrics.get("collisions", 0), "metrics.collisions")),
-                metrics={str(k): v for k, v in metrics.items()},
-            )
-        except CheckFailedError as exc:
+            parsed = WorldStatusReply.model_validate(reply)
+        except ValidationError as exc:
             raise CheckFailedError(f"the world's status reply does not fit: {exc}") from None
+        return cls(
+            t_s=parsed.t_s,
+            live=parsed.live,
+            position_errors_m=parsed.position_errors_m,
+            collisions=parsed.metrics.collisions,
+            metrics=parsed.metrics.model_dump(),
+        )
 
     def error_m(self, robot: str) -> float:
         """The robot's position error; infinite when the world reports none for it."""
@@ -416,24 +412,6 @@ def check_viewer(
 
 
 @dataclass(frozen=True)
-class LoopTiming:
-    """One robot's control-loop timing in summary.json (`control_timing`)."""
-
-    ticks: int
-    deadline_misses: int
-    period_jitter_p99_ms: float | None
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, object]) -> LoopTiming:
-        jitter = data.get("period_jitter_p99_ms")
-        return cls(
-            ticks=int(_number(data.get("ticks"), "ticks")),
-            deadline_misses=int(_number(data.get("deadline_misses"), "deadline_misses")),
-            period_jitter_p99_ms=None if jitter is None else _number(jitter, "jitter"),
-        )
-
-
-@dataclass(frozen=True)
 class RunSummary:
     """The fields of a world's summary.json (docs/summary-schema.md) that the report shows."""
 
@@ -441,7 +419,7 @@ class RunSummary:
     collisions: int
     clock_mode: str
     figures_m: Mapping[str, object]
-    control_timing: Mapping[str, LoopTiming | None]
+    control_timing: Mapping[str, LoopTimingReport | None]
 
     @classmethod
     def read(cls, path: Path) -> RunSummary:
@@ -457,10 +435,12 @@ class RunSummary:
                 clock_mode=str(data.get("clock_mode", "?")),
                 figures_m={key: data.get(key) for key in FIGURES_M},
                 control_timing={
-                    str(name): LoopTiming.from_json(t) if t else None for name, t in timing.items()
+                    str(name): LoopTimingReport.model_validate(t) if t else None
+                    for name, t in timing.items()
                 },
             )
         except (OSError, ValueError, TypeError, AttributeError, CheckFailedError) as exc:
+            # (a pydantic ValidationError is a ValueError)
             raise CheckFailedError(f"cannot read {path}: {exc}") from exc
 
     def report_lines(self) -> list[str]:

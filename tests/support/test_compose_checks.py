@@ -44,11 +44,14 @@ def reply(
         "live": sorted(live),
         "robots": list(ROBOTS),
         "metrics": {
+            "leader": "robot1",
             "collisions": collisions,
             "formation_rms_m": {"robot2": 0.012, "robot3": None},
             "leader_tracking_rms_m": 0.004,
         },
         "position_errors_m": dict(errors_m or dict.fromkeys(ROBOTS, 0.01)),
+        "radio": {"delivered": 10, "frames": 10},
+        "lockstep_owed": {},
     }
 
 
