@@ -10,11 +10,12 @@ disturbances):
   result of a quick OFA run on ``--tune-scenario`` (paper.yaml) at ``--budget`` evaluations of
   ``--duration`` simulated seconds (what ``swarm tune`` does, without the files).
 
-Every scenario is run for its full duration with its own steady-state window; the figures are
-averaged over ``--noise-seeds`` seeds (the scenario's seed and the following ones). Columns:
-rules per robot K, leader tracking RMS and follower formation RMS over nominal steady-state
-samples, the eq. 16 error term (time-averaged Σ_i |x_e| + |y_e| + |θ_e|), the fitness of eq. 16
-with the scenario's weights, collisions and minimum obstacle clearance. The lemniscate scenario
+Every scenario is run for its full duration with its own windows; the figures are averaged
+over ``--noise-seeds`` seeds (the scenario's seed and the following ones). Columns: rules per
+robot K, leader tracking RMS and follower formation RMS over nominal steady-state samples, the
+eq. 16 error term (Σ_i |x_e| + |y_e| + |θ_e| averaged over the fitness window, by default the
+whole run), the fitness of eq. 16 with the scenario's weights, collisions and minimum obstacle
+clearance. The lemniscate scenario
 was not used for tuning: it shows whether a tuned scheduler carries over.
 
     .venv/bin/python bench/controller_table.py [--tuned runs/tune/best_fuzzy.yaml]
@@ -168,8 +169,9 @@ def main() -> None:
         followers = [k.split(":", 1)[1] for k in figures[controllers[0].label] if ":" in k]
         print()
         print(
-            f"{scenario.name}: {scenario.duration_s:g} s, window t >= "
-            f"{scenario.metrics.steady_state_start_s:g} s, mean over noise seeds {seeds} "
+            f"{scenario.name}: {scenario.duration_s:g} s, RMS over t >= "
+            f"{scenario.metrics.steady_state_start_s:g} s, eq. 16 over t >= "
+            f"{scenario.metrics.fitness_window_start_s:g} s, mean over noise seeds {seeds} "
             f"({wall_s:.0f} s)"
         )
         header = (
