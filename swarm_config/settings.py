@@ -27,7 +27,8 @@ def describe_validation_error(
         where = ".".join(str(p) for p in item["loc"]) or "(top level)"
         var = env.get(str(item["loc"][0])) if env and item["loc"] else None
         hint = f" (or ${var})" if var else ""
-        lines.append(f"  {where}{hint}: {item['msg']}")
+        message = item["msg"].removeprefix("Value error, ")
+        lines.append(f"  {where}{hint}: {message}")
     return "\n".join(lines)
 
 

@@ -43,8 +43,8 @@ from pydantic import (
     Field,
     PositiveFloat,
     ValidationError,
+    ValidationInfo,
     field_validator,
-    model_validator,
 )
 
 from robot_firmware.net.admin import AdminQueue
@@ -125,11 +125,12 @@ class WorldConfig(LayeredSettings):
             )
         return value
 
-    @model_validator(mode="after")
-    def _max_speed_needs_lockstep(self) -> WorldConfig:
-        if self.max_speed is not None and not self.lockstep:
-            raise ValueError("max_speed applies to lockstep runs only (real time runs at 1)")
-        return self
+    @field_validator("max_speed")
+    @classmethod
+    def _max_speed_needs_lockstep(cls, value: float | None, info: ValidationInfo) -> float | None:
+        if value is not None and not info.data.get("lockstep", False):
+            raise ValueError("applies to lockstep runs only (real time runs at 1)")
+        return value
 
 
 class WorldProcess:

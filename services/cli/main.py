@@ -291,7 +291,7 @@ def _cmd_net(args: argparse.Namespace) -> int:
             }
             if not changes:
                 raise UsageError(
-                    "net set: give --profile or at least one of --latency-ms, --jitter-ms, --loss"
+                    "give --profile or at least one of --latency-ms, --jitter-ms, --loss"
                 )
         body = json.dumps(changes).encode()
     return _print_reply(_ask(args, "world", "net", body))
