@@ -9,7 +9,8 @@
     python -m tests.support.compose_checks summary   SUMMARY_JSON [--min-duration S]
 
 The swarm checks ask the world for its admin status (`swarm/<swarm>/admin/world/status`,
-world/runtime.py) through the router's published port, over one client session:
+world/runtime.py) through the router's published port, over one client session, and read its
+reply as `WorldStatusReply` (robot_firmware/net/messages.py):
 
 * live: every robot of --robots is live;
 * formation: every robot live with its position error (distance from its reference: the
@@ -45,9 +46,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
-from pydantic import ValidationError
-
-from robot_firmware.net.messages import LoopTimingReport
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.messages import LoopTimingReport, WorldStatusReply, parse_reply
+from robot_firmware.net.session import open_client
 from tests.support.compose_host import http_status
 from tests.support.waiting import wait_for
 
@@ -78,51 +79,21 @@ def _number(value: object, what: str) -> float:
     return float(value)
 
 
-@dataclass(frozen=True)
-class WorldStatus:
-    """The fields of the world's admin status reply (`WorldStatusReply`) that the checks use."""
-
-    t_s: float
-    live: tuple[str, ...]
-    position_errors_m: Mapping[str, float]
-    collisions: int
-    metrics: Mapping[str, object] = field(default_factory=dict)
-
-    @classmethod
-    def from_payload(cls, payload: bytes) -> WorldStatus | None:
-        try:
-            reply = json.loads(payload)
-        except (ValueError, UnicodeDecodeError):
-            raise CheckFailedError(f"the world's status reply is not JSON: {payload!r}") from None
-        if not isinstance(reply, dict):
-            raise CheckFailedError(f"the world's status reply is not an object: {reply!r}")
-        return cls.from_reply(reply)
-
-    @classmethod
-    def from_reply(cls, reply: Mapping[str, object] | None) -> WorldStatus | None:
-        """None for no answer or a refusal; CheckFailedError for a reply that does not fit."""
-        from robot_firmware.net.messages import WorldStatusReply
-
-        if reply is None or reply.get("ok") is not True:
-            return None
-        try:
-            parsed = WorldStatusReply.model_validate(reply)
-        except ValidationError as exc:
-            raise CheckFailedError(f"the world's status reply does not fit: {exc}") from None
-        return cls(
-            t_s=parsed.t_s,
-            live=parsed.live,
-            position_errors_m=parsed.position_errors_m,
-            collisions=parsed.metrics.collisions,
-            metrics=parsed.metrics.model_dump(),
-        )
-
-    def error_m(self, robot: str) -> float:
-        """The robot's position error; infinite when the world reports none for it."""
-        return self.position_errors_m.get(robot, math.inf)
+def read_world_status(payload: bytes) -> WorldStatusReply | None:
+    """The world's status reply; None when the world refused; CheckFailedError when it does
+    not fit the model."""
+    reply = parse_reply(WorldStatusReply, payload)
+    if reply is None:
+        raise CheckFailedError(f"the world's status reply does not fit: {payload[:300]!r}")
+    return reply if isinstance(reply, WorldStatusReply) else None
 
 
-StatusSource = Callable[[], WorldStatus | None]
+def position_error_m(status: WorldStatusReply, robot: str) -> float:
+    """The robot's position error; infinite when the world reports none for it."""
+    return status.position_errors_m.get(robot, math.inf)
+
+
+StatusSource = Callable[[], WorldStatusReply | None]
 
 
 @contextmanager
@@ -131,17 +102,14 @@ def world_status_source(
 ) -> Iterator[StatusSource]:
     """A client session to the router at `endpoint` (it waits for the router, as every swarm
     process does) and, while it is open, a source that asks the world of `swarm` for its
-    status, one admin query a call."""
-    from robot_firmware.net.keys import SwarmKeys
-    from robot_firmware.net.session import open_client
-
+    status, one admin query a call (None when nobody answered)."""
     key = SwarmKeys(swarm).admin("world", "status")
     with open_client([endpoint]) as session:
 
-        def status() -> WorldStatus | None:
+        def status() -> WorldStatusReply | None:
             for reply in session.get(key, timeout=reply_timeout_s):
                 if reply.ok is not None:
-                    return WorldStatus.from_payload(reply.ok.payload.to_bytes())
+                    return read_world_status(bytes(reply.ok.payload.to_bytes()))
             return None
 
         yield status
@@ -161,10 +129,12 @@ class FormationHold:
     hold_s: float
     since_s: float | None = None
 
-    def settled(self, status: WorldStatus) -> bool:
-        return all(n in status.live and status.error_m(n) < self.max_error_m for n in self.robots)
+    def settled(self, status: WorldStatusReply) -> bool:
+        return all(
+            n in status.live and position_error_m(status, n) < self.max_error_m for n in self.robots
+        )
 
-    def update(self, now_s: float, status: WorldStatus | None) -> bool:
+    def update(self, now_s: float, status: WorldStatusReply | None) -> bool:
         """Takes the status seen at `now_s`; True once the formation has held for hold_s."""
         if status is None or not self.settled(status):
             self.since_s = None
@@ -175,8 +145,8 @@ class FormationHold:
 
 
 def after_kill_problems(
-    before: WorldStatus,
-    after: WorldStatus,
+    before: WorldStatusReply,
+    after: WorldStatusReply,
     dead: str,
     robots: Sequence[str],
     observe_s: float,
@@ -193,9 +163,9 @@ def after_kill_problems(
         problems.append(f"{dead} came back by itself (its restart policy should be 'no')")
     if advanced_s < 0.5 * observe_s:
         problems.append(f"the world advanced only {advanced_s:.1f} s in {observe_s:g} s")
-    if after.collisions:
-        problems.append(f"the world reports {after.collisions} collisions")
-    if leader != dead and after.error_m(leader) >= max_error_m:
+    if after.metrics.collisions:
+        problems.append(f"the world reports {after.metrics.collisions} collisions")
+    if leader != dead and position_error_m(after, leader) >= max_error_m:
         problems.append(f"the leader {leader} left its trajectory")
     return problems
 
@@ -236,7 +206,7 @@ class Probe:
     source: StatusSource
     clock: Callable[[], float] = time.monotonic
     sleep: Callable[[float], None] = time.sleep
-    last: WorldStatus | None = None
+    last: WorldStatusReply | None = None
     t0_s: float = field(init=False)
 
     def __post_init__(self) -> None:
@@ -245,18 +215,18 @@ class Probe:
     def elapsed_s(self) -> float:
         return self.clock() - self.t0_s
 
-    def status(self) -> WorldStatus | None:
+    def status(self) -> WorldStatusReply | None:
         status = self.source()
         if status is not None:
             self.last = status
         return status
 
-    def show(self, status: WorldStatus) -> None:
+    def show(self, status: WorldStatusReply) -> None:
         errors = ", ".join(f"{n} {100 * e:.1f}" for n, e in status.position_errors_m.items())
         print(
             f"    +{self.elapsed_s():5.1f} s  world t={status.t_s:6.1f} s  "
             f"live {','.join(status.live) or '-'}  errors [cm] {errors}  "
-            f"collisions {status.collisions}",
+            f"collisions {status.metrics.collisions}",
             flush=True,
         )
 
@@ -282,7 +252,7 @@ class Probe:
 
 
 def check_live(probe: Probe, robots: Sequence[str], timeout_s: float) -> None:
-    def all_live() -> WorldStatus | None:
+    def all_live() -> WorldStatusReply | None:
         status = probe.status()
         return status if status is not None and set(robots) <= set(status.live) else None
 
@@ -305,16 +275,18 @@ def hold_formation(
     hold = FormationHold(tuple(robots), max_error_m, hold_s)
     shown_s = -math.inf
 
-    def held() -> WorldStatus | None:
+    def held() -> WorldStatusReply | None:
         nonlocal shown_s
         status = probe.status()
         now_s = probe.clock()
         if status is None:
             hold.update(now_s, None)
             return None
-        if status.collisions:
+        if status.metrics.collisions:
             probe.show(status)
-            raise CheckFailedError(f"{what}: the world reports {status.collisions} collisions")
+            raise CheckFailedError(
+                f"{what}: the world reports {status.metrics.collisions} collisions"
+            )
         if now_s - shown_s >= SHOW_EVERY_S:
             probe.show(status)
             shown_s = now_s
@@ -336,7 +308,7 @@ def hold_formation(
 def check_gone(
     probe: Probe, robots: Sequence[str], dead: str, observe_s: float, max_error_m: float
 ) -> None:
-    def left() -> WorldStatus | None:
+    def left() -> WorldStatusReply | None:
         status = probe.status()
         return status if status is not None and dead not in status.live else None
 
@@ -355,7 +327,7 @@ def check_gone(
     others = ", ".join(n for n in robots if n != dead)
     print(
         f"    {others} kept going: {after.t_s - before.t_s:.1f} s of world time in "
-        f"{observe_s:g} s, leader error {100 * after.error_m(robots[0]):.1f} cm"
+        f"{observe_s:g} s, leader error {100 * position_error_m(after, robots[0]):.1f} cm"
     )
 
 
@@ -367,7 +339,7 @@ def check_rejoin(
     hold_s: float,
     timeout_s: float,
 ) -> None:
-    def live_again() -> WorldStatus | None:
+    def live_again() -> WorldStatusReply | None:
         status = probe.status()
         return status if status is not None and robot in status.live else None
 
@@ -379,12 +351,13 @@ def check_rejoin(
 
 def check_final(probe: Probe, timeout_s: float) -> None:
     status = probe.wait(probe.status, timeout_s, 0.5, "the world does not answer")
+    collisions = status.metrics.collisions
     print(
-        f"    world t={status.t_s:.1f} s, collisions {status.collisions}, "
-        f"{format_figures_m(status.metrics)}"
+        f"    world t={status.t_s:.1f} s, collisions {collisions}, "
+        f"{format_figures_m(status.metrics.model_dump())}"
     )
-    if status.collisions:
-        raise CheckFailedError(f"the world reports {status.collisions} collisions")
+    if collisions:
+        raise CheckFailedError(f"the world reports {collisions} collisions")
 
 
 def check_viewer(

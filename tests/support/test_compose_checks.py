@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
+from robot_firmware.net.messages import WorldStatusReply
 from tests.support.compose_checks import (
     CheckFailedError,
     FormationHold,
     Probe,
     RunSummary,
-    WorldStatus,
     after_kill_problems,
     check_final,
     check_gone,
@@ -23,6 +23,8 @@ from tests.support.compose_checks import (
     format_figure_m,
     hold_formation,
     main,
+    position_error_m,
+    read_world_status,
 )
 from tests.support.fake_clock import FakeClock
 
@@ -55,27 +57,25 @@ def reply(
     }
 
 
-def status(**kwargs: object) -> WorldStatus:
-    parsed = WorldStatus.from_reply(reply(**kwargs))  # type: ignore[arg-type]
-    assert parsed is not None
-    return parsed
+def status(**kwargs: object) -> WorldStatusReply:
+    return WorldStatusReply.model_validate(reply(**kwargs))  # type: ignore[arg-type]
 
 
 class ScriptedWorld:
     """Answers from a script, one status per query; the last answer repeats."""
 
-    def __init__(self, answers: Iterable[WorldStatus | None]) -> None:
-        self._answers: Iterator[WorldStatus | None] = iter(answers)
-        self._last: WorldStatus | None = None
+    def __init__(self, answers: Iterable[WorldStatusReply | None]) -> None:
+        self._answers: Iterator[WorldStatusReply | None] = iter(answers)
+        self._last: WorldStatusReply | None = None
         self.queries = 0
 
-    def __call__(self) -> WorldStatus | None:
+    def __call__(self) -> WorldStatusReply | None:
         self.queries += 1
         self._last = next(self._answers, self._last)
         return self._last
 
 
-def probe_of(answers: Iterable[WorldStatus | None]) -> tuple[Probe, FakeClock]:
+def probe_of(answers: Iterable[WorldStatusReply | None]) -> tuple[Probe, FakeClock]:
     clock = FakeClock()
     return Probe(ScriptedWorld(answers), clock=clock, sleep=clock.sleep), clock
 
@@ -83,17 +83,17 @@ def probe_of(answers: Iterable[WorldStatus | None]) -> tuple[Probe, FakeClock]:
 # -- the world's reply --------------------------------------------------------------------------
 
 
-def test_reply_is_read_into_the_fields_the_checks_use() -> None:
-    st = status(t_s=12.5, live=["robot3", "robot1"], collisions=0)
+def test_reply_is_read_as_the_world_status_model() -> None:
+    st = read_world_status(json.dumps(reply(t_s=12.5, live=["robot3", "robot1"])).encode())
+    assert isinstance(st, WorldStatusReply)
     assert st.t_s == 12.5
     assert st.live == ("robot1", "robot3")
-    assert st.error_m("robot2") == 0.01
-    assert st.error_m("robot9") == float("inf")
+    assert position_error_m(st, "robot2") == 0.01
+    assert position_error_m(st, "robot9") == float("inf")
 
 
-@pytest.mark.parametrize("answer", [None, {"ok": False, "error": "unknown admin verb"}, {}])
-def test_no_answer_or_a_refusal_is_no_status(answer: dict[str, object] | None) -> None:
-    assert WorldStatus.from_reply(answer) is None
+def test_a_refusal_is_no_status() -> None:
+    assert read_world_status(b'{"ok": false, "error": "unknown admin verb"}') is None
 
 
 @pytest.mark.parametrize(
@@ -103,7 +103,13 @@ def test_a_reply_that_does_not_fit_is_a_failed_check(key: str, value: object) ->
     bad = reply()
     bad[key] = value
     with pytest.raises(CheckFailedError, match="the world's status reply does not fit"):
-        WorldStatus.from_reply(bad)
+        read_world_status(json.dumps(bad).encode())
+
+
+@pytest.mark.parametrize("payload", [b"{}", b"not json", b"[1, 2]"])
+def test_a_reply_that_is_no_status_at_all_is_a_failed_check(payload: bytes) -> None:
+    with pytest.raises(CheckFailedError, match="the world's status reply does not fit: b'"):
+        read_world_status(payload)
 
 
 # -- formation hold -----------------------------------------------------------------------------
@@ -125,7 +131,7 @@ def test_formation_holds_after_hold_s_in_a_row() -> None:
         status(errors_m={"robot1": 0.01, "robot3": 0.01}),  # no error reported for robot2
     ],
 )
-def test_an_interruption_starts_the_hold_again(interruption: WorldStatus | None) -> None:
+def test_an_interruption_starts_the_hold_again(interruption: WorldStatusReply | None) -> None:
     hold = FormationHold(ROBOTS, max_error_m=0.05, hold_s=3.0)
     good = status()
     assert not hold.update(0.0, good)
