@@ -4,19 +4,22 @@ The world process (and in-process tests that run real firmware on real fabric mo
 `WorldEngine`: it owns the ground truth of every robot body, turns it into what each robot's
 pins see (`SenseMessage`: running encoder counts, sonar echo times, positioning fixes) and takes
 back what the motor pins carry (PWM duty per wheel).  It is also the radio medium: frames are
-opaque bytes, delivered to every other robot after the link profile's delay, or dropped.
+opaque bytes, delivered to every other robot after the link's delay, or dropped.
 
-Everything is pure: time advances only through `advance(duty, dt_ns)`, randomness comes from
-a generator seeded by the scenario.  Physics uses the same `step_bodies` as the batch simulator,
-and the metrics the same `MetricsAccumulator`, so a live run and `swarm sim` report the same
-quantities.
+The engine is the stateful shell around the batched world step of `world.step` with an empty
+batch shape: `sense` is `sense_world`, `advance` is `step_world` with no senders, and
+`transmit` is the step's radio half (`broadcast`) for one sender, because frames reach the world
+whenever a robot sends one.  The batch simulator calls the same functions, so a live run and
+`swarm sim` share physics, sensors, radio draws and noise streams, and the metrics are the same
+`MetricsAccumulator`.  Time advances only through `advance(duty, dt_ns)`; randomness comes from
+a generator seeded by the scenario.
 """
 
 from __future__ import annotations
 
 import heapq
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,12 +28,18 @@ from robot_firmware.net.wire import FixSample, SenseMessage
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario
 from world.metrics import FormationLayout, MetricsAccumulator
-from world.physics import BodyState, encoder_counts, resolve_contacts, step_bodies
-from world.radio import draw_links
-from world.sensors import pose_fix, sonar_gaps
+from world.physics import BodyState
+from world.step import (
+    WorldInputs,
+    WorldNoise,
+    WorldParams,
+    WorldState,
+    broadcast,
+    sense_world,
+    step_world,
+)
 
 FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 SPEED_OF_SOUND_MPS = 343.0
 NS_PER_S = 1_000_000_000
@@ -63,9 +72,11 @@ class RadioCounters:
 
 def echo_times_from_gaps(gaps_m: FloatArray) -> list[tuple[float | None, ...]]:
     """Round-trip echo time per robot and transducer for gaps (n, beams); None = no echo."""
+    times_s = 2.0 * gaps_m / SPEED_OF_SOUND_MPS
+    heard = np.isfinite(times_s)
     return [
-        tuple(None if not np.isfinite(g) else 2.0 * float(g) / SPEED_OF_SOUND_MPS for g in row)
-        for row in gaps_m
+        tuple(float(t) if h else None for t, h in zip(row, heard_row, strict=True))
+        for row, heard_row in zip(times_s, heard, strict=True)
     ]
 
 
@@ -77,35 +88,28 @@ class WorldEngine:
         self.names = scenario.robot_names
         self.robot_count = len(self.names)
         self.rng = np.random.default_rng(scenario.seed if seed is None else seed)
-        self.body_params = scenario.robot_body
-        self.sonar_params = scenario.sensors.sonar
-        self.fix_params = scenario.sensors.positioning
-        self.beam_angles_rad = np.asarray(scenario.controller_params().sonar_beam_angles_rad)
-        self.obstacle_centres_m, self.obstacle_radii_m = scenario.obstacle_arrays()
-        self.bodies = BodyState.at_rest(scenario.initial_poses())
+        self.noise = WorldNoise.spawn(self.rng)
+        self.params = WorldParams.from_scenario(scenario)
+        self.state = WorldState.at_rest(scenario.initial_poses())
         self.t_ns = 0
-        self.link: LinkProfile = scenario.radio.link
         self.radio = RadioCounters()
         self._queue: list[_Frame] = []
         self._order = 0
-        self._bad_links = np.zeros(self.robot_count, dtype=bool)
-        self.fix_period_ns = round(NS_PER_S / self.fix_params.rate_hz)
-        self.sonar_period_ns = round(NS_PER_S / self.sonar_params.rate_hz)
+        self.fix_period_ns = round(NS_PER_S / self.params.positioning.rate_hz)
+        self.sonar_period_ns = round(NS_PER_S / self.params.sonar.rate_hz)
         self.metrics_period_ns = round(scenario.controller_params().control_period_s * NS_PER_S)
         self._next_fix_ns = 0
         self._next_sonar_ns = 0
         self._sonar_echo_times_s = echo_times_from_gaps(
-            np.full((self.robot_count, len(self.beam_angles_rad)), np.inf)
+            np.full((self.robot_count, len(self.params.beam_angles_rad)), np.inf)
         )
-        self._fixes: list[FixSample | None] = [None] * self.robot_count
         self._next_metrics_ns = 0
-        self._contacts: BoolArray | None = None
         self.trajectory = scenario.trajectory.build()
         self.metrics = MetricsAccumulator(
             (),
             FormationLayout.from_scenario(scenario),
-            self.obstacle_centres_m,
-            self.obstacle_radii_m,
+            self.params.obstacle_centres_m,
+            self.params.obstacle_radii_m,
             scenario.metrics_config(),
         )
         self.fixes_cut = np.zeros(self.robot_count, dtype=bool)
@@ -114,111 +118,77 @@ class WorldEngine:
     def t_s(self) -> float:
         return self.t_ns / NS_PER_S
 
+    @property
+    def bodies(self) -> BodyState:
+        return self.state.bodies
+
+    @property
+    def link(self) -> LinkProfile:
+        """How the radio medium treats every link; can be changed while the world runs."""
+        return self.params.link
+
+    @link.setter
+    def link(self, profile: LinkProfile) -> None:
+        self.params = replace(self.params, link=profile)
+
     def sense(self) -> list[SenseMessage]:
         """What every robot's pins see now; fixes and sonar refresh at their own rates."""
-        if self.t_ns >= self._next_sonar_ns:
+        sonar_due = self.t_ns >= self._next_sonar_ns
+        if sonar_due:
             self._next_sonar_ns += self.sonar_period_ns
-            n = self.robot_count
-            m = len(self.obstacle_radii_m)
-            targets = np.concatenate([self.obstacle_centres_m, self.bodies.pose[:, :2]], axis=0)
-            radii = np.concatenate(
-                [self.obstacle_radii_m, np.full(n, self.body_params.body_radius_m)]
-            )
-            valid = np.concatenate([np.ones((n, m), dtype=bool), ~np.eye(n, dtype=bool)], axis=1)
-            gaps_m = sonar_gaps(
-                self.bodies.pose,
-                self.beam_angles_rad,
-                np.broadcast_to(targets, (n, m + n, 2)),
-                radii,
-                valid,
-                self.body_params.body_radius_m,
-                self.rng.standard_normal((n, len(self.beam_angles_rad))),
-                self.sonar_params,
-            )
-            self._sonar_echo_times_s = echo_times_from_gaps(gaps_m)
-        fresh_fix = self.t_ns >= self._next_fix_ns
-        if fresh_fix:
+        fix_due = self.t_ns >= self._next_fix_ns
+        if fix_due:
             self._next_fix_ns += self.fix_period_ns
-            noisy = pose_fix(
-                self.bodies.pose, self.rng.standard_normal((self.robot_count, 3)), self.fix_params
-            )
-            self._fixes = [
-                FixSample(
-                    float(p[0]),
-                    float(p[1]),
-                    float(p[2]),
-                    self.t_ns,
-                    valid=not bool(self.fixes_cut[i]),
-                )
-                for i, p in enumerate(noisy)
+        seen = sense_world(self.state, self.params, self.noise, fix_due, sonar_due)
+        if seen.sonar_gap_m is not None:
+            self._sonar_echo_times_s = echo_times_from_gaps(seen.sonar_gap_m)
+        fixes: list[FixSample | None] = [None] * self.robot_count
+        if seen.fix_pose is not None:
+            fixes = [
+                FixSample(float(p[0]), float(p[1]), float(p[2]), self.t_ns, valid=not bool(cut))
+                for p, cut in zip(seen.fix_pose, self.fixes_cut, strict=True)
             ]
-        counts = encoder_counts(
-            self.bodies.wheel_angle_rad, self.body_params.encoder_counts_per_rev
-        )
-        messages = []
-        for i in range(self.robot_count):
-            messages.append(
-                SenseMessage(
-                    encoder_counts=tuple(int(c) for c in counts[i]),
-                    sonar_echo_times_s=self._sonar_echo_times_s[i],
-                    fix=self._fixes[i] if fresh_fix else None,
-                    t_ns=self.t_ns,
-                )
+        return [
+            SenseMessage(
+                encoder_counts=tuple(int(c) for c in counts),
+                sonar_echo_times_s=echo,
+                fix=fix,
+                t_ns=self.t_ns,
             )
-        return messages
+            for counts, echo, fix in zip(
+                seen.encoder_counts, self._sonar_echo_times_s, fixes, strict=True
+            )
+        ]
 
     def advance(self, duty: FloatArray, dt_ns: int) -> None:
         """Step the bodies by dt_ns with the given duties (N, 4); record metrics on schedule."""
         if self.t_ns >= self._next_metrics_ns:
             self._next_metrics_ns += self.metrics_period_ns
             reference, _ = self.trajectory.evaluate(self.t_s)
-            self.metrics.update(self.t_s, self.bodies.pose, reference, self._contacts)
-        dt_s = dt_ns / NS_PER_S
-        self.bodies = step_bodies(
-            self.bodies,
-            np.asarray(duty, dtype=np.float64),
-            dt_s,
-            self.rng.standard_normal((self.robot_count, 4)),
-            self.body_params,
-        )
-        positions, report = resolve_contacts(
-            self.bodies.pose[:, :2],
-            self.body_params.body_radius_m,
-            self.obstacle_centres_m,
-            self.obstacle_radii_m,
-        )
-        pose = self.bodies.pose.copy()
-        pose[:, :2] = positions
-        self.bodies = BodyState(
-            pose=pose,
-            wheel_speed_radps=self.bodies.wheel_speed_radps,
-            wheel_angle_rad=self.bodies.wheel_angle_rad,
-            slip=self.bodies.slip,
-        )
-        self._contacts = np.concatenate((report.robot_robot, report.robot_obstacle), axis=-1)
+            self.metrics.update(self.t_s, self.bodies.pose, reference, self.state.contacts)
+        inputs = WorldInputs(duty=np.asarray(duty, dtype=np.float64), dt_s=dt_ns / NS_PER_S)
+        self.state, _ = step_world(self.state, inputs, self.params, self.noise)
         self.t_ns += dt_ns
 
     def transmit(self, sender: int, payload: bytes) -> None:
         """A robot broadcasts `payload` now; each other robot gets it after its link's delay."""
         self.radio.sent += 1
-        receivers = np.array([r for r in range(self.robot_count) if r != sender])
-        if receivers.size == 0:
-            return
-        positions = self.bodies.pose[:, :2]
-        length = np.hypot(*(positions[receivers] - positions[sender]).T)
-        draw = draw_links(self.link, self._bad_links[receivers], length, self.rng)
-        self._bad_links[receivers] = draw.in_bad_state
-        for r, ok, delay_s in zip(receivers, draw.delivered, draw.delay_s, strict=True):
-            if not ok:
+        self.state, fates = broadcast(
+            self.state, np.array([sender], dtype=np.int64), self.params, self.noise
+        )
+        for receiver in range(self.robot_count):
+            if receiver == sender:
+                continue
+            if not fates.delivered[0, receiver]:
                 self.radio.dropped += 1
                 continue
             self._order += 1
             heapq.heappush(
                 self._queue,
                 _Frame(
-                    arrival_ns=self.t_ns + round(float(delay_s) * NS_PER_S),
+                    arrival_ns=self.t_ns + round(float(fates.delay_s[0, receiver]) * NS_PER_S),
                     order=self._order,
-                    receiver=int(r),
+                    receiver=receiver,
                     sender=sender,
                     sent_ns=self.t_ns,
                     payload=payload,

@@ -2,10 +2,11 @@
 
 Each control tick (100 Hz by default) does what the swarm's processes do, in this order:
 deliver radio frames that are due, synthesise sensors from ground truth (encoders every tick,
-positioning fix and sonar at their own rates), run every robot's `control_step` (the same
-function the firmware runs), broadcast each robot's state at the radio rate, record metrics,
-then advance the physics by one control period with the duties held (`step_bodies` is exact
-for a held duty; `physics_substeps` splits the period for comparison).
+positioning fix and sonar at their own rates: `world.step.sense_world`), run every robot's
+`control_step` (the same function the firmware runs), record metrics, then take one world step
+(`world.step.step_world`, the same one the world process takes): the frames of the robots whose
+broadcast is due meet the radio medium, and the bodies move for one control period with the
+duties held (exact for a held duty; `physics_substeps` splits the period for comparison).
 
 The B runs differ by their fuzzy schedulers (a batched rule base) and, unless
 `shared_noise=True`, by their noise.  Shared noise gives every run the same disturbances
@@ -30,12 +31,17 @@ from robot_firmware.control.fuzzy import FuzzyRuleBase
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario, load_rule_base
 from world.metrics import FormationLayout, MetricsAccumulator
-from world.physics import BodyState, encoder_counts, resolve_contacts, step_bodies
-from world.radio import draw_links
-from world.sensors import pose_fix, sonar_gaps
+from world.step import (
+    FrameFates,
+    WorldInputs,
+    WorldNoise,
+    WorldParams,
+    WorldState,
+    sense_world,
+    step_world,
+)
 
 FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 
 @dataclass
@@ -76,7 +82,7 @@ class BatchResult:
 
 
 class BatchRadio:
-    """Delivers each robot's broadcast state to the others through a link profile.
+    """Delivers each robot's broadcast state to the others, as the world step decided.
 
     Frames wait in a small per-sender ring until their arrival time; a receiver keeps the
     newest state it has received from each peer (older frames arriving late are ignored).
@@ -88,10 +94,8 @@ class BatchRadio:
         robot_count: int,
         profile: LinkProfile,
         broadcast_period_s: float,
-        shared_noise: bool,
     ) -> None:
         b, n = batch_shape, robot_count
-        self.profile = profile
         self.slots = int(np.ceil(profile.max_delay_s / broadcast_period_s)) + 2
         k = self.slots
         self.payload = np.zeros((k,) + b + (n, 6))
@@ -101,35 +105,24 @@ class BatchRadio:
         self.next_slot = np.zeros(n, dtype=np.int64)
         self.peer_state = np.zeros(b + (n, n, 6))  # receiver, sender
         self.peer_stamp_s = np.full(b + (n, n), -np.inf)
-        self.bad_state = np.zeros(((1,) if shared_noise else b) + (n, n), dtype=bool)
-        self.not_self = ~np.eye(n, dtype=bool)
         self.sent = 0
         self.delivered = np.zeros(b, dtype=np.int64)
-        self.noise_shape = ((1,) if shared_noise else b) + (n, n)
 
-    def broadcast(
-        self,
-        t_s: float,
-        senders: NDArray[np.int64],
-        state: FloatArray,
-        positions_m: FloatArray,
-        rng: np.random.Generator,
-    ) -> None:
-        """Robots `senders` broadcast `state` (..., N, 6) at t_s; links drawn per receiver."""
+    def post(self, t_s: float, fates: FrameFates, state: FloatArray) -> None:
+        """The senders' `state` (..., N, 6) leaves at t_s; `fates` says which links carry it."""
+        senders = fates.senders
         if senders.size == 0:
             return
-        d = positions_m[..., :, None, :] - positions_m[..., None, :, :]
-        length = np.hypot(d[..., 0], d[..., 1]) if self.profile.range_m is not None else None
-        draw = draw_links(self.profile, self.bad_state, length, rng)
-        self.bad_state = draw.in_bad_state
         slot = self.next_slot[senders] % self.slots
         self.next_slot[senders] += 1
         self.payload[slot, ..., senders, :] = np.moveaxis(state[..., senders, :], -2, 0)
         self.stamp_s[slot, senders] = t_s
-        arrival = t_s + np.broadcast_to(draw.delay_s, self.arrival_s.shape[1:])
-        ok = np.broadcast_to(draw.delivered & self.not_self, self.pending.shape[1:])
-        self.arrival_s[slot, ..., senders, :] = np.moveaxis(arrival[..., senders, :], -2, 0)
-        self.pending[slot, ..., senders, :] = np.moveaxis(ok[..., senders, :], -2, 0)
+        links = self.arrival_s.shape[1:-2] + (senders.size, self.arrival_s.shape[-1])
+        arrival = t_s + np.broadcast_to(fates.delay_s, links)
+        self.arrival_s[slot, ..., senders, :] = np.moveaxis(arrival, -2, 0)
+        self.pending[slot, ..., senders, :] = np.moveaxis(
+            np.broadcast_to(fates.delivered, links), -2, 0
+        )
         self.sent += int(senders.size)
 
     def deliver(self, t_s: float) -> None:
@@ -188,17 +181,17 @@ def run_batch(
     if physics_substeps < 1:
         raise ValueError("physics_substeps must be at least 1")
     params = controller if controller is not None else scenario.controller_params()
-    body_params = scenario.robot_body
-    sonar_params = scenario.sensors.sonar
-    fix_params = scenario.sensors.positioning
+    world_params = WorldParams.from_scenario(scenario, params.sonar_beam_angles_rad)
     dt = params.control_period_s
     ticks = round((duration_s if duration_s is not None else scenario.duration_s) / dt)
-    rng = np.random.default_rng(scenario.seed if seed is None else seed)
 
     names = scenario.robot_names
     n = len(names)
     b = (batch_size,)
-    noise_b = (1,) if shared_noise else b
+    noise = WorldNoise.spawn(
+        np.random.default_rng(scenario.seed if seed is None else seed),
+        (1,) if shared_noise else b,
+    )
     layout = FormationLayout.from_scenario(scenario)
     role = RobotRole(
         is_leader=np.broadcast_to(np.arange(n) == layout.leader_index, b + (n,)),
@@ -215,64 +208,46 @@ def run_batch(
     rule_count = np.broadcast_to(np.asarray(base.rule_count), b) * n
 
     trajectory = scenario.trajectory.build()
-    obstacle_centres, obstacle_radii = scenario.obstacle_arrays()
-    m = len(obstacle_radii)
-    beams = np.asarray(params.sonar_beam_angles_rad)
-    body_r = body_params.body_radius_m
-    target_radii = np.concatenate([obstacle_radii, np.full(n, body_r)])
-    target_valid = np.concatenate(
-        [np.ones((n, m), dtype=bool), ~np.eye(n, dtype=bool)], axis=1
-    )  # (N, M + N): a robot's sonar does not see itself
-
-    bodies = BodyState.at_rest(np.broadcast_to(scenario.initial_poses(), b + (n, 3)).copy())
-    state = ControllerState.initial(b + (n,), len(beams))
-    radio = BatchRadio(
-        b, n, scenario.radio.link, 1.0 / scenario.radio.broadcast_rate_hz, shared_noise
+    world = WorldState.at_rest(
+        np.broadcast_to(scenario.initial_poses(), b + (n, 3)).copy(), noise.batch_shape
     )
+    state = ControllerState.initial(b + (n,), len(world_params.beam_angles_rad))
+    radio = BatchRadio(b, n, scenario.radio.link, 1.0 / scenario.radio.broadcast_rate_hz)
     broadcast_every = max(1, round(1.0 / (scenario.radio.broadcast_rate_hz * dt)))
-    fix_every = max(1, round(1.0 / (fix_params.rate_hz * dt)))
-    sonar_every = max(1, round(1.0 / (sonar_params.rate_hz * dt)))
-    sonar_gap = np.full(b + (n, len(beams)), np.inf)
+    fix_every = max(1, round(1.0 / (world_params.positioning.rate_hz * dt)))
+    sonar_every = max(1, round(1.0 / (world_params.sonar.rate_hz * dt)))
+    sonar_gap = np.full(b + (n, len(world_params.beam_angles_rad)), np.inf)
     fix_pose = np.zeros(b + (n, 3))
+    fix_valid = np.ones(b + (n,), dtype=bool)
     no_fix = np.zeros(b + (n,), dtype=bool)
     peer_is_leader = np.arange(n) == layout.leader_index
     robot_index = np.arange(n)
     metrics = MetricsAccumulator(
-        b, layout, obstacle_centres, obstacle_radii, scenario.metrics_config()
+        b,
+        layout,
+        world_params.obstacle_centres_m,
+        world_params.obstacle_radii_m,
+        scenario.metrics_config(),
     )
-    contacts: BoolArray | None = None
     trace = Trace() if record_trace else None
-    sub_dt = dt / physics_substeps
 
     for k in range(ticks):
         t = k * dt
         radio.deliver(t)
-        counts = encoder_counts(bodies.wheel_angle_rad, body_params.encoder_counts_per_rev)
         fix_due = k % fix_every == 0
-        if fix_due:
-            fix_pose = pose_fix(bodies.pose, rng.standard_normal(noise_b + (n, 3)), fix_params)
         sonar_due = k % sonar_every == 0
-        if sonar_due:
-            targets = np.concatenate(
-                [np.broadcast_to(obstacle_centres, b + (m, 2)), bodies.pose[..., :2]], axis=-2
-            )
-            sonar_gap = sonar_gaps(
-                bodies.pose,
-                beams,
-                targets[..., None, :, :],
-                target_radii,
-                target_valid,
-                body_r,
-                rng.standard_normal(noise_b + (n, len(beams))),
-                sonar_params,
-            )
+        seen = sense_world(world, world_params, noise, fix_due, sonar_due)
+        if seen.fix_pose is not None:
+            fix_pose = seen.fix_pose
+        if seen.sonar_gap_m is not None:
+            sonar_gap = seen.sonar_gap_m
         reference_pose, reference_rate = trajectory.evaluate(t)
         peer = radio.peer_state
         inputs = ControlInputs(
             t_s=t,
-            encoder_counts=counts,
+            encoder_counts=seen.encoder_counts,
             fix_pose=fix_pose,
-            fix_valid=np.broadcast_to(fix_due, b + (n,)) if fix_due else no_fix,
+            fix_valid=fix_valid if fix_due else no_fix,
             sonar_range_m=sonar_gap,
             sonar_fresh=sonar_due,
             peer_pose=peer[..., :3],
@@ -284,36 +259,24 @@ def run_batch(
             reference_rate=reference_rate,
         )
         state, out = control_step(state, inputs, role, rules, params)
-        senders = robot_index[(k + robot_index) % broadcast_every == 0]
-        if senders.size:
-            payload = np.concatenate((state.estimator.pose, state.estimator.rate), axis=-1)
-            radio.broadcast(t, senders, payload, bodies.pose[..., :2], rng)
-        errors = metrics.update(t, bodies.pose, reference_pose, contacts)
+        errors = metrics.update(t, world.bodies.pose, reference_pose, world.contacts)
         if trace is not None:
             trace.t_s.append(t)
-            trace.true_pose.append(bodies.pose.copy())
+            trace.true_pose.append(world.bodies.pose.copy())
             trace.estimated_pose.append(state.estimator.pose.copy())
             trace.desired_pose.append(out.desired_pose)
             trace.trajectory_pose.append(reference_pose)
             trace.errors.append(errors)
             trace.delta_k.append(out.delta_k)
             trace.kp.append(out.kp)
-        for _ in range(physics_substeps):
-            bodies = step_bodies(
-                bodies, out.duty, sub_dt, rng.standard_normal(noise_b + (n, 4)), body_params
-            )
-        positions, report = resolve_contacts(
-            bodies.pose[..., :2], body_r, obstacle_centres, obstacle_radii
+        senders = robot_index[(k + robot_index) % broadcast_every == 0]
+        step = WorldInputs(
+            duty=out.duty, dt_s=dt, senders=senders, physics_substeps=physics_substeps
         )
-        pose = bodies.pose.copy()
-        pose[..., :2] = positions
-        bodies = BodyState(
-            pose=pose,
-            wheel_speed_radps=bodies.wheel_speed_radps,
-            wheel_angle_rad=bodies.wheel_angle_rad,
-            slip=bodies.slip,
-        )
-        contacts = np.concatenate((report.robot_robot, report.robot_obstacle), axis=-1)
+        world, fates = step_world(world, step, world_params, noise)
+        if senders.size:
+            payload = np.concatenate((state.estimator.pose, state.estimator.rate), axis=-1)
+            radio.post(t, fates, payload)
 
     return BatchResult(
         scenario=scenario,
