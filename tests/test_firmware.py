@@ -1,87 +1,180 @@
-"""The firmware on the fabric model, closed through the world engine, in one process."""
+"""The firmware on the fabric model, closed through the world engine, in one process.
 
-from dataclasses import fields
+`FirmwareSwarm` runs every robot's real firmware on its own fabric model against the world
+engine; the batch simulator runs the same `control_step` on the same world step.  Under the same
+noise the two must fly the same swarm, up to what the register path and its timing change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from robot_firmware.control.controller import (
-    ControlInputs,
-    ControllerState,
-    RobotRole,
-    control_step,
-)
-from robot_firmware.control.estimation import EstimatorState
-from robot_firmware.control.pid import PidState
+from robot_firmware.control.controller import ControllerParams
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, RobotMission
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
 from robot_firmware.net.frames import key_from_secret
+from services.sim.batch import run_batch
 from services.sim.firmware_swarm import FirmwareSwarm
-from swarm_config.scenario import load_rule_base, load_scenario
-from world.metrics import FormationLayout
+from swarm_config.scenario import Scenario, load_rule_base, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
 KEY = key_from_secret("test swarm secret")
 
+AGREEMENT_S = 20.0
+STEADY_FROM_S = 10.0
+NOMINAL_POSITION_AGREEMENT_M = 0.002
+NOMINAL_HEADING_AGREEMENT_RAD = 0.002
+AVOIDANCE_POSITION_AGREEMENT_M = 0.05
+RMS_AGREEMENT_M = 0.0001
 
-def _stack(items: list, axis_shape: tuple[int, ...] = (1,)):  # type: ignore[no-untyped-def]
-    """Stack per-robot dataclasses of arrays into one batch of shape (1, N, ...)."""
-    first = items[0]
-    values = {}
-    for f in fields(first):
-        parts = [getattr(item, f.name) for item in items]
-        if isinstance(parts[0], (EstimatorState, PidState)):
-            values[f.name] = _stack(parts, axis_shape)
-        elif isinstance(parts[0], (bool, float, int)) and not isinstance(parts[0], np.ndarray):
-            values[f.name] = parts[0]
-        else:
-            values[f.name] = np.stack([np.asarray(p) for p in parts])[None]
-    return type(first)(**values)
+
+@dataclass(frozen=True)
+class SwarmRun:
+    """A run's true poses (T, N, 3) at every control tick, and its RMS figures."""
+
+    true_pose: np.ndarray
+    leader_tracking_rms_m: float
+    formation_rms_m: dict[str, float]
+    collisions: int
+
+    @classmethod
+    def of(cls, true_pose: np.ndarray, summary: dict[str, object]) -> SwarmRun:
+        formation = summary["formation_rms_m"]
+        assert isinstance(formation, dict)
+        return cls(
+            true_pose=true_pose,
+            leader_tracking_rms_m=float(summary["leader_tracking_rms_m"]),  # type: ignore[arg-type]
+            formation_rms_m={str(k): float(v) for k, v in formation.items()},
+            collisions=int(summary["collisions"]),  # type: ignore[call-overload]
+        )
+
+
+@dataclass(frozen=True)
+class FirmwareRun:
+    run: SwarmRun
+    swarm: FirmwareSwarm
+    nominal: np.ndarray
+    """(T,) samples at which every robot is nominal (DESIGN.md §8: no obstacle near its
+    reference point for the metrics' hold time), as the world's own metrics judge it."""
+
+
+def _agreement_scenario() -> Scenario:
+    """The paper scenario for 20 s, its RMS figures taken over the last 10 s."""
+    scenario = load_scenario(PAPER)
+    metrics = scenario.metrics.model_copy(update={"steady_state_start_s": STEADY_FROM_S})
+    return scenario.model_copy(update={"duration_s": AGREEMENT_S, "metrics": metrics})
+
+
+@pytest.fixture(scope="module")
+def firmware_run() -> FirmwareRun:
+    scenario = _agreement_scenario()
+    swarm = FirmwareSwarm(scenario, KEY)
+    metrics = swarm.world.metrics
+    poses, nominal = [], []
+    for _ in range(round(AGREEMENT_S * 1e9 / swarm.period_ns)):
+        t_s = swarm.world.t_s
+        poses.append(swarm.world.bodies.pose.copy())
+        swarm.step()  # records this sample's metrics, then advances
+        quiet_s = t_s - metrics.last_near_obstacle_s
+        nominal.append(bool(np.all(quiet_s >= metrics.config.nominal_hold_s)))
+    run = SwarmRun.of(np.array(poses), swarm.world.summary())
+    return FirmwareRun(run, swarm, np.array(nominal))
+
+
+def _batch_run(seed: int | None = None, controller: ControllerParams | None = None) -> SwarmRun:
+    scenario = _agreement_scenario()
+    result = run_batch(scenario, 1, controller=controller, record_trace=True, seed=seed)
+    assert result.trace is not None
+    return SwarmRun.of(result.trace.arrays()["true_pose"][:, 0], result.summaries[0])
+
+
+def _disagreement(firmware: FirmwareRun, batch: SwarmRun) -> dict[str, float]:
+    """The largest differences between the two runs, per kind of sample and figure."""
+    fw = firmware.run
+    offset_m = np.hypot(*np.moveaxis(fw.true_pose[..., :2] - batch.true_pose[..., :2], -1, 0))
+    turn = fw.true_pose[..., 2] - batch.true_pose[..., 2]
+    heading_rad = np.abs(np.arctan2(np.sin(turn), np.cos(turn)))
+    nominal = firmware.nominal
+    rms_m = [abs(fw.leader_tracking_rms_m - batch.leader_tracking_rms_m)]
+    rms_m += [abs(v - batch.formation_rms_m[k]) for k, v in fw.formation_rms_m.items()]
+    return {
+        "nominal_position_m": float(offset_m[nominal].max()),
+        "nominal_heading_rad": float(heading_rad[nominal].max()),
+        "avoidance_position_m": float(offset_m[~nominal].max()),
+        "rms_m": max(rms_m),
+    }
+
+
+def test_firmware_swarm_and_batch_simulator_fly_the_same_swarm(firmware_run: FirmwareRun) -> None:
+    """The paper scenario for 20 s, same seed: real firmware on fabric models vs run_batch.
+
+    Both runs take the same world step (world/step.py) from the same seed, and each noise
+    source draws from its own stream, so both see the same positioning-fix, sonar and
+    wheel-slip noise sample for sample (only the radio's draws differ, because the firmwares
+    broadcast in the same tick and the batch simulator staggers the robots; the lab link loses
+    1 % of frames and delivers the rest within the tick).  What is left between them:
+
+    * the register path: PWM duty in whole fabric cycles (1/2500 of full scale at 20 kHz),
+      the fix in um and urad; encoder counts and the radio frames' float64 fields are exact;
+    * timing: a sonar sweep reaches the firmware 1-3 ticks after the batch simulator uses it
+      (the echo's flight, 30 ms time-outs for beams that hear nothing, polling every 10 ms),
+      so the APF reacts a tick or more later.
+
+    Bounds, with what was measured when they were set:
+
+    * nominal samples (no robot's reference near the obstacle, DESIGN.md §8): positions
+      within 2 mm and headings within 2 mrad at every sample.  The quantisation errors are
+      corrected by every fix and stay below 1 mm (0.6 mm, 0.6 mrad measured); a 2 % change of
+      K_P in one of the two moves them 4.7 mm apart, another noise seed 39 mm.
+    * during the avoidance manoeuvre: within 5 cm.  The late sonar makes the leader swerve a
+      little differently (3.3 cm measured; 1.9 cm when the batch's sonar is delayed by one
+      tick) and the followers follow it; afterwards the runs re-converge to the nominal bound.
+    * leader tracking and formation RMS over the last 10 s: within 0.1 mm (0.01 cm).  They
+      average errors whose difference is the sub-millimetre, mostly zero-mean quantisation
+      residue (0.02 mm measured; a 10 % change of K_I in one of the two gives 0.2 mm).
+    """
+    batch = _batch_run()
+    assert batch.collisions == 0
+    gaps = _disagreement(firmware_run, batch)
+    assert firmware_run.nominal.mean() > 0.5, "most of the run should be nominal"
+    assert not firmware_run.nominal.all(), "the leader should have met the obstacle"
+    assert gaps["nominal_position_m"] <= NOMINAL_POSITION_AGREEMENT_M, gaps
+    assert gaps["nominal_heading_rad"] <= NOMINAL_HEADING_AGREEMENT_RAD, gaps
+    assert gaps["avoidance_position_m"] <= AVOIDANCE_POSITION_AGREEMENT_M, gaps
+    assert gaps["rms_m"] <= RMS_AGREEMENT_M, gaps
+    # The agreement comes from the shared noise: another seed does not meet the bound.
+    other = _disagreement(firmware_run, _batch_run(seed=firmware_run.swarm.scenario.seed + 1))
+    assert other["nominal_position_m"] > NOMINAL_POSITION_AGREEMENT_M, other
+
+
+def test_firmware_swarm_runs_clean(firmware_run: FirmwareRun) -> None:
+    """Every robot hears its peers, no frame is refused, no bus access fails, nobody collides."""
+    assert firmware_run.run.collisions == 0
+    for robot in firmware_run.swarm.robots:
+        assert robot.firmware.decoder.counters.accepted > 0
+        assert robot.firmware.decoder.counters.dropped_total == 0
+        assert robot.drivers.bus_errors == 0
 
 
 @pytest.mark.slow
 def test_firmware_closed_loop_tracks_the_papers_circle() -> None:
     scenario = load_scenario(PAPER)
     swarm = FirmwareSwarm(scenario, KEY)
-    summary = swarm.run(scenario.duration_s)
-    assert summary["leader_tracking_rms_m"] <= 0.02
-    for value in summary["formation_rms_m"].values():  # type: ignore[union-attr]
+    run = SwarmRun.of(swarm.world.bodies.pose, swarm.run(scenario.duration_s))
+    assert run.leader_tracking_rms_m <= 0.02
+    for value in run.formation_rms_m.values():
         assert value <= 0.03
-    assert summary["collisions"] == 0
+    assert run.collisions == 0
     for robot in swarm.robots:
         assert robot.firmware.decoder.counters.accepted > 0
         assert robot.firmware.decoder.counters.dropped_total == 0
         assert robot.drivers.bus_errors == 0
-
-
-def test_firmware_and_batch_simulator_compute_the_same_wheel_commands() -> None:
-    scenario = load_scenario(PAPER)
-    swarm = FirmwareSwarm(scenario, KEY)
-    for _ in range(150):  # past boot, localisation and the first radio frames
-        swarm.step()
-    states = [r.firmware.last_state for r in swarm.robots]
-    inputs = [r.firmware.last_inputs for r in swarm.robots]
-    assert all(s is not None for s in states) and all(i is not None for i in inputs)
-    batch_state: ControllerState = _stack(states)  # type: ignore[arg-type]
-    batch_inputs: ControlInputs = _stack(inputs)  # type: ignore[arg-type]
-    layout = FormationLayout.from_scenario(scenario)
-    n = len(layout.names)
-    # Exactly how the batch simulator lays out roles and schedulers for B = 1 run of N robots.
-    role = RobotRole(
-        is_leader=(np.arange(n) == layout.leader_index)[None],
-        slot_distance_m=layout.slot_distance_m,
-        slot_angle_rad=layout.slot_angle_rad,
-    )
-    rules = load_rule_base(scenario).expand_dims((0, 1, 2))
-    _, batch_out = control_step(
-        batch_state, batch_inputs, role, rules, scenario.controller_params()
-    )
-    firmware_wheels = np.stack([r.outputs.wheel_speed_radps for r in swarm.last_reports])
-    assert np.any(firmware_wheels != 0.0)
-    np.testing.assert_array_equal(batch_out.wheel_speed_radps[0], firmware_wheels)
 
 
 def test_watchdog_cuts_the_motors_when_the_loop_stops() -> None:
