@@ -225,3 +225,12 @@ def test_the_world_engine_takes_the_same_step() -> None:
         expected = [(r, sender, bytes([k])) for r in range(3) if fates.delivered[0, r]]
         assert sorted(engine.due_frames()) == expected
     assert engine.radio.dropped > 0 and engine.radio.delivered > 0
+
+
+def test_links_longer_than_the_radio_range_carry_nothing_in_every_run_of_a_batch() -> None:
+    params, pose = _paper_params(LinkProfile(range_m=1.6))  # robot1-robot2 1.58 m, others more
+    state = WorldState.at_rest(np.broadcast_to(pose, (4, 3, 3)).copy(), (1,))
+    noise = WorldNoise.spawn(np.random.default_rng(0), (1,))  # runs share the noise
+    _, fates = broadcast(state, np.array([0, 1]), params, noise)
+    expected = [[False, True, False], [True, False, False]]
+    np.testing.assert_array_equal(fates.delivered, np.broadcast_to(expected, (4, 2, 3)))
