@@ -35,18 +35,25 @@ from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, RobotMission, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
-from robot_firmware.net.admin import AdminQueue
+from robot_firmware.net.admin import AdminQueue, Handler
 from robot_firmware.net.frames import SWARM_KEY_ENV_VAR, key_from_secret, swarm_hash_from_name
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
     AdminError,
+    AdminRefusal,
     LoopTimingReport,
     ParamsReply,
     RobotStatusReply,
     TelemetryMessage,
 )
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
-from robot_firmware.net.wire import ActMessage, decode_sense, encode_act
+from robot_firmware.net.wire import (
+    ActMessage,
+    WireCounters,
+    WireDropReason,
+    encode_act,
+    parse_sense,
+)
 from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
 from robot_firmware.tick_scheduler import TickScheduler, Wait
@@ -120,7 +127,8 @@ class RobotProcess:
         self._frames: deque[bytes] = deque(maxlen=1024)
         self._admin = AdminQueue()
         self._wake = threading.Event()
-        self.malformed_sense = 0
+        self.sense_counters = WireCounters()
+        """Sense messages applied, and refused per `WireDropReason`."""
         self.stop = threading.Event()
         self._fabric_time_ns = 0
         self._telemetry_period_ns = round(NS_PER_S / config.telemetry_rate_hz)
@@ -173,12 +181,9 @@ class RobotProcess:
         """Apply every queued sense message to the pins in order and tell the scheduler."""
         while self._sense:
             raw, arrival = self._sense.popleft()
-            message = decode_sense(raw)
-            if message is None or len(message.encoder_counts) != 4:
-                self.malformed_sense += 1
-                continue
-            if len(message.sonar_echo_times_s) != self.mission.sonar_count:
-                self.malformed_sense += 1
+            message = parse_sense(raw, self.mission.sonar_count)
+            self.sense_counters.count(message)
+            if isinstance(message, WireDropReason):
                 continue
             apply_sense(self.fabric, message)
             self.scheduler.sensed(
@@ -248,7 +253,8 @@ class RobotProcess:
             "estimate": tuple(float(v) for v in est.pose),
             "frames": self.firmware.decoder.counters.as_dict(),
             "bus_errors": self.drivers.bus_errors,
-            "malformed_sense": self.malformed_sense,
+            "malformed_sense": self.sense_counters.dropped_total,
+            "dropped_sense": self.sense_counters.dropped_as_dict(),
             "timing": LoopTimingReport(
                 ticks=timing.ticks,
                 deadline_misses=timing.deadline_misses,
@@ -290,9 +296,15 @@ class RobotProcess:
             return ParamsReply(parameters=None if current is None else current.model_dump())
         try:
             data = yaml.safe_load(payload.decode("utf-8"))
+        except (ValueError, yaml.YAMLError, RecursionError) as exc:
+            # ValueError: not UTF-8, or a date that does not exist (PyYAML builds one from
+            # 2001-02-30); RecursionError: nested too deep for PyYAML's composer.
+            return AdminError(
+                error=f"fuzzy parameters refused: not YAML or JSON: {exc}",
+                reason=AdminRefusal.NOT_YAML,
+            )
+        try:
             parameters = FuzzyParameters.model_validate(data)
-        except (UnicodeDecodeError, yaml.YAMLError) as exc:
-            return AdminError(error=f"fuzzy parameters refused: not YAML or JSON: {exc}")
         except ValidationError as exc:
             return AdminError(error=describe_validation_error("fuzzy parameters refused", exc))
         self.firmware.set_rule_base(parameters.rule_base())
@@ -304,13 +316,15 @@ class RobotProcess:
         )
         return ParamsReply(rule_count=len(parameters.error_centres) * len(parameters.rate_centres))
 
+    def admin_handlers(self) -> dict[str, Handler]:
+        """The robot's admin verbs, served between control ticks."""
+        return {
+            "regs": lambda body: handle_regs_request(self.fabric.bus, body),
+            "params": self._params_request,
+            "status": lambda _body: RobotStatusReply(
+                **self._telemetry_fields(self._sim_time_ns(time.monotonic_ns()))
+            ),
+        }
+
     def _serve_queries(self) -> None:
-        self._admin.serve(
-            {
-                "regs": lambda body: handle_regs_request(self.fabric.bus, body),
-                "params": self._params_request,
-                "status": lambda _body: RobotStatusReply(
-                    **self._telemetry_fields(self._sim_time_ns(time.monotonic_ns()))
-                ),
-            }
-        )
+        self._admin.serve(self.admin_handlers())

@@ -47,10 +47,11 @@ from pydantic import (
     field_validator,
 )
 
-from robot_firmware.net.admin import AdminQueue
+from robot_firmware.net.admin import AdminQueue, Handler
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
     AdminError,
+    AdminRefusal,
     LockstepSeat,
     LoopTimingReport,
     NetProfileRequest,
@@ -64,7 +65,15 @@ from robot_firmware.net.messages import (
     parse_message,
 )
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
-from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, encode_clock, encode_sense
+from robot_firmware.net.wire import (
+    ActMessage,
+    ClockMessage,
+    WireCounters,
+    WireDropReason,
+    encode_clock,
+    encode_sense,
+    parse_act,
+)
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario, load_rule_base
 from swarm_config.settings import LayeredSettings, describe_validation_error
@@ -154,12 +163,15 @@ class WorldProcess:
         self._admin = AdminQueue()
         self._wake = threading.Event()
         self.stop = threading.Event()
-        self.malformed_acts = 0
+        self.act_counters = WireCounters()
+        """Act messages applied, and refused per `WireDropReason`."""
         self.malformed_telemetry = 0
         self.unknown_senders = 0
         self._catch_up: Callable[[int], None] | None = None
         self._held_frames: list[tuple[int, bytes]] = []
         self.timing: dict[str, LoopTimingReport] = {}
+        self.sense_drops: dict[str, dict[str, int]] = {}
+        """Each robot's refused sense messages per reason, from its latest telemetry."""
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._clock_started_mono_s: float | None = None
         self.rule_count_total = int(np.asarray(load_rule_base(scenario).rule_count)) * len(
@@ -194,8 +206,10 @@ class WorldProcess:
         telemetry = parse_message(TelemetryMessage, sample.payload.to_bytes())
         if telemetry is None or telemetry.robot not in self.index:
             self.malformed_telemetry += 1
-        elif telemetry.timing is not None:
-            self.timing[telemetry.robot] = telemetry.timing
+        else:
+            self.sense_drops[telemetry.robot] = telemetry.dropped_sense
+            if telemetry.timing is not None:
+                self.timing[telemetry.robot] = telemetry.timing
 
     # -- queues, drained by the main loop ------------------------------------------------
 
@@ -216,10 +230,10 @@ class WorldProcess:
                 robot, raw, arrival = self._acts.get_nowait()
             except queue.Empty:
                 break
-            act = decode_act(raw)
             i = self.index.get(robot)
-            if act is None or i is None:
-                self.malformed_acts += 1
+            act = parse_act(raw) if i is not None else WireDropReason.UNKNOWN_ROBOT
+            self.act_counters.count(act)
+            if i is None or isinstance(act, WireDropReason):
                 continue
             if self._catch_up is not None:
                 self._catch_up(arrival)  # the old duty held until this act arrived
@@ -491,7 +505,11 @@ class WorldProcess:
             name: None if (timing := self.timing.get(name)) is None else timing.model_dump()
             for name in self.names
         }
-        summary["malformed_acts"] = self.malformed_acts
+        summary["malformed_acts"] = self.act_counters.dropped_total
+        summary["dropped_inputs"] = {
+            "act": self.act_counters.dropped_as_dict(),
+            "sense": {name: self.sense_drops.get(name) for name in self.names},
+        }
         summary["malformed_telemetry"] = self.malformed_telemetry
         return summary
 
@@ -508,8 +526,12 @@ class WorldProcess:
             self._serve_queries()
         return self.stop.is_set()
 
+    def admin_handlers(self) -> dict[str, Handler]:
+        """The world's admin verbs, served between steps."""
+        return {"net": self._net_request, "status": lambda _body: self._status()}
+
     def _serve_queries(self) -> None:
-        self._admin.serve({"net": self._net_request, "status": lambda _body: self._status()})
+        self._admin.serve(self.admin_handlers())
 
     def _status(self) -> WorldStatusReply:
         return WorldStatusReply(
@@ -540,8 +562,10 @@ class WorldProcess:
             return NetReply(profile=self.engine.link)
         try:
             request = json.loads(payload)
-        except (ValueError, UnicodeDecodeError) as exc:
-            return AdminError(error=f"invalid network profile: not JSON: {exc}")
+        except (ValueError, RecursionError) as exc:  # ValueError: also not UTF-8
+            return AdminError(
+                error=f"invalid network profile: not JSON: {exc}", reason=AdminRefusal.NOT_JSON
+            )
         if not isinstance(request, dict):
             return AdminError(error="invalid network profile: the request must be a JSON object")
         try:
@@ -549,7 +573,10 @@ class WorldProcess:
                 name = NetProfileRequest.model_validate(request).profile
                 if name not in PROFILES:
                     known = ", ".join(sorted(PROFILES))
-                    return AdminError(error=f"unknown profile {name!r}; known: {known}")
+                    return AdminError(
+                        error=f"unknown profile {name!r}; known: {known}",
+                        reason=AdminRefusal.UNKNOWN_PROFILE,
+                    )
                 profile = PROFILES[name]
             else:
                 merged = {**self.engine.link.model_dump(exclude_none=True), **request}

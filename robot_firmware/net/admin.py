@@ -6,6 +6,9 @@ that owns the state (a robot between control ticks, the world between steps, the
 calls `serve` with one handler per verb.  A handler takes the request body and returns a reply
 model of `robot_firmware/net/messages.py`; an unknown verb gets an `AdminError` naming the known
 ones, and a handler that fails is answered with an `AdminError` too (logged, never a crash).
+`AdminCounters` counts the answers, and the refusals per `AdminRefusal` reason; a handler
+refuses a bad request itself, so `handler_failed` (the safety net) stays at zero unless a
+handler has a bug.
 """
 
 from __future__ import annotations
@@ -13,14 +16,16 @@ from __future__ import annotations
 import json
 import logging
 import queue
+from collections import Counter
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import TypeVar
 
 import zenoh
 from pydantic import BaseModel
 
 from robot_firmware.net.keys import SwarmKeys
-from robot_firmware.net.messages import AdminError, parse_reply
+from robot_firmware.net.messages import AdminError, AdminRefusal, parse_reply
 from robot_firmware.net.session import open_client
 
 log = logging.getLogger("swarm.admin")
@@ -29,9 +34,23 @@ Handler = Callable[[bytes], BaseModel]
 R = TypeVar("R", bound=BaseModel)
 
 
+@dataclass
+class AdminCounters:
+    """Admin requests answered by one process, and the refusals among them per reason."""
+
+    answered: int = 0
+    refused: Counter[str] = field(default_factory=Counter)
+
+    @property
+    def handler_failures(self) -> int:
+        """Requests whose handler raised (answered by the safety net of `answer`)."""
+        return self.refused[AdminRefusal.HANDLER_FAILED]
+
+
 class AdminQueue:
     def __init__(self) -> None:
         self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self.counters = AdminCounters()
 
     def on_query(self, query: zenoh.Query) -> None:
         """The queryable's callback: queue and return."""
@@ -47,20 +66,41 @@ class AdminQueue:
                 return served
             verb = SwarmKeys.last_chunk(str(query.key_expr))
             body = query.payload.to_bytes() if query.payload is not None else b""
-            query.reply(query.key_expr, answer(handlers, verb, body).model_dump_json().encode())
+            reply = answer(handlers, verb, body, self.counters)
+            query.reply(query.key_expr, reply.model_dump_json().encode())
             served += 1
 
 
-def answer(handlers: Mapping[str, Handler], verb: str, body: bytes) -> BaseModel:
-    """The reply to one admin request (pure: what `serve` sends back)."""
+def answer(
+    handlers: Mapping[str, Handler],
+    verb: str,
+    body: bytes,
+    counters: AdminCounters | None = None,
+) -> BaseModel:
+    """The reply to one admin request (pure but for `counters`: what `serve` sends back)."""
+    reply = _reply(handlers, verb, body)
+    if counters is not None:
+        counters.answered += 1
+        if isinstance(reply, AdminError):
+            counters.refused[reply.reason] += 1
+    return reply
+
+
+def _reply(handlers: Mapping[str, Handler], verb: str, body: bytes) -> BaseModel:
     handler = handlers.get(verb)
     if handler is None:
-        return AdminError(error=f"unknown admin verb {verb!r}; use {', '.join(sorted(handlers))}")
+        return AdminError(
+            error=f"unknown admin verb {verb!r}; use {', '.join(sorted(handlers))}",
+            reason=AdminRefusal.UNKNOWN_VERB,
+        )
     try:
         return handler(body)
     except Exception as exc:  # a bug in a handler must not take the process down
         log.exception("admin verb %r failed", verb)
-        return AdminError(error=f"{verb} failed inside the process: {type(exc).__name__}: {exc}")
+        return AdminError(
+            error=f"{verb} failed inside the process: {type(exc).__name__}: {exc}",
+            reason=AdminRefusal.HANDLER_FAILED,
+        )
 
 
 def ask(

@@ -26,6 +26,7 @@ field is refused as a whole (`parse_message` returns None, and the reader counts
 
 from __future__ import annotations
 
+import enum
 import json
 from typing import Annotated, Literal, TypeVar
 
@@ -55,10 +56,29 @@ M = TypeVar("M", bound=BaseModel)
 
 def parse_message(model: type[M], payload: bytes | str) -> M | None:
     """The payload as `model`, or None when it is not JSON or does not fit the model."""
+    message = parse_message_or_reason(model, payload)
+    return None if isinstance(message, MessageDropReason) else message
+
+
+class MessageDropReason(enum.Enum):
+    """Why a reader refused a JSON message."""
+
+    NOT_JSON = "not_json"
+    """Not UTF-8 JSON text (or nested too deep to read)."""
+    DOES_NOT_FIT = "does_not_fit"
+    """JSON, but a required field is missing or a field has the wrong type or value."""
+
+
+def parse_message_or_reason(model: type[M], payload: bytes | str) -> M | MessageDropReason:
+    """The payload as `model`, or why it was refused."""
     try:
-        return model.model_validate(json.loads(payload))
-    except (ValueError, UnicodeDecodeError, ValidationError):
-        return None
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return MessageDropReason.NOT_JSON
+    try:
+        return model.model_validate(data)
+    except ValidationError:
+        return MessageDropReason.DOES_NOT_FIT
 
 
 # -- robot -> viewers ---------------------------------------------------------------------------
@@ -88,6 +108,9 @@ class TelemetryMessage(Message):
     """The frame decoder's counters: accepted, and every drop under its reason."""
     bus_errors: int = 0
     malformed_sense: int = 0
+    """Sense messages refused, all reasons."""
+    dropped_sense: dict[str, int] = Field(default_factory=dict)
+    """Sense messages refused per reason (robot_firmware/net/wire.py `WireDropReason`)."""
     timing: LoopTimingReport | None = None
     sonar_range_m: tuple[float | None, ...] = ()
     """Per transducer: the gap to the nearest echo, None when nothing was heard."""
@@ -142,11 +165,39 @@ class TruthMessage(Message):
 # -- admin: common ------------------------------------------------------------------------------
 
 
+class AdminRefusal(enum.StrEnum):
+    """Why an admin request was refused (`AdminError.reason`)."""
+
+    INVALID_REQUEST = "invalid_request"
+    """The body does not fit the verb's request model (a field missing, unknown or invalid)."""
+    NOT_JSON = "not_json"
+    """The body is not a JSON document."""
+    NOT_YAML = "not_yaml"
+    """The body is not a YAML (or JSON) document."""
+    UNKNOWN_VERB = "unknown_verb"
+    UNKNOWN_ROBOT = "unknown_robot"
+    UNKNOWN_PROFILE = "unknown_profile"
+    BUS_ERROR = "bus_error"
+    """The register access was refused by the bus."""
+    HANDLER_FAILED = "handler_failed"
+    """The handler raised: a bug, answered by the dispatcher's safety net."""
+
+
+def refusal_of(error: ValidationError) -> AdminRefusal:
+    """`not_json` when pydantic could not read the body as JSON at all, else `invalid_request`."""
+    if any(item["type"] == "json_invalid" for item in error.errors(include_url=False)):
+        return AdminRefusal.NOT_JSON
+    return AdminRefusal.INVALID_REQUEST
+
+
 class AdminError(Message):
     """Any admin verb's refusal: nothing was changed."""
 
     ok: Literal[False] = False
     error: str
+    reason: str = AdminRefusal.INVALID_REQUEST.value
+    """An `AdminRefusal` value; a string, so that a reader older than a new reason still reads
+    the refusal."""
 
 
 class AdminOk(Message):
@@ -196,6 +247,7 @@ class RegsBusError(AdminError):
     """A refused register access, reported as the bus error it is."""
 
     address: int
+    reason: str = AdminRefusal.BUS_ERROR.value
 
 
 RegsReply = RegsDumpReply | RegsAccessReply | RegsBusError | AdminError

@@ -1,8 +1,6 @@
 """Pin-level messages between the world and a robot's fabric, and the world's clock.
 
-Each is an explicit little-endian `struct` layout with a version byte.  A decoder returns None
-for anything malformed (wrong length, unknown version, non-finite values) and never raises; the
-caller counts the drop.
+Each is an explicit little-endian `struct` layout with a version byte.
 
     sense  (world -> fabric)  version u8, n_sonar u8, flags u8 (bit0 fix present, bit1 fix
                               valid, bit2 lockstep), radio frames delivered with it u8,
@@ -16,16 +14,33 @@ caller counts the drop.
 The frame counts let lockstep be deterministic: radio frames travel on their own keys, so a
 receiver waits until it holds as many frames as the message announces before it goes on.
     clock  (world -> all)     version u8, lockstep u8, pad u16, tick u64, t_ns u64, dt_ns u64
+
+Receiving: `parse_sense`, `parse_act` and `parse_clock` never raise.  Each returns the message
+or the first `WireDropReason` that refuses it, checks in this order: bytes-like (`not_bytes`);
+length (`too_short`, `too_long`; a sense message's length follows from its sonar count);
+version (`unsupported_version`); sonar count above `MAX_SONAR` (`too_many_sonars`); flag, enable
+or pad bits that mean nothing (`reserved_bits`); a sonar count other than the receiver's
+(`wrong_sonar_count`, when it names one); NaN or infinity (`non_finite`); values no world
+sends (`out_of_range`: a duty outside [-1, 1], a fix farther than `MAX_ABS_FIX_M` from the
+origin on an axis, an echo later than `MAX_ECHO_TIME_S`, a clock step of zero).  The receiver
+counts the drop in a `WireCounters`; `unknown_robot` is the world's own reason for an act
+message on a key that names no robot of the scenario.  `decode_*` are the same checks for
+callers that only need the message (None when refused).
 """
 
 from __future__ import annotations
 
+import enum
 import math
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 WIRE_VERSION = 1
 MAX_SONAR = 64
+MAX_ABS_FIX_M = 1.0e4
+"""Largest |x| or |y| of a positioning fix, metres (the radio frames' bound)."""
+MAX_ECHO_TIME_S = 1.0
+"""Latest sonar echo, seconds: about 170 m of sound path, far beyond any transducer's range."""
 
 _SENSE_HEAD = struct.Struct("<BBBBQQ4q3dQ")
 _ACT = struct.Struct("<BBBBQ4d")
@@ -34,6 +49,48 @@ _CLOCK = struct.Struct("<BBHQQQ")
 _FIX_PRESENT = 1
 _FIX_VALID = 2
 _LOCKSTEP = 4
+_SENSE_FLAGS = _FIX_PRESENT | _FIX_VALID | _LOCKSTEP
+
+
+class WireDropReason(enum.Enum):
+    """Why a received wire message was refused, in the order the checks run."""
+
+    NOT_BYTES = "not_bytes"
+    TOO_SHORT = "too_short"
+    TOO_LONG = "too_long"
+    UNSUPPORTED_VERSION = "unsupported_version"
+    TOO_MANY_SONARS = "too_many_sonars"
+    RESERVED_BITS = "reserved_bits"
+    WRONG_SONAR_COUNT = "wrong_sonar_count"
+    NON_FINITE = "non_finite"
+    OUT_OF_RANGE = "out_of_range"
+    UNKNOWN_ROBOT = "unknown_robot"
+
+
+@dataclass(slots=True)
+class WireCounters:
+    """Messages of one kind seen by one receiver: accepted, and refused per reason (every
+    reason present)."""
+
+    accepted: int = 0
+    dropped: dict[WireDropReason, int] = field(
+        default_factory=lambda: dict.fromkeys(WireDropReason, 0)
+    )
+
+    def count(self, outcome: object) -> None:
+        """Count one message: a `WireDropReason` as that drop, anything else as accepted."""
+        if isinstance(outcome, WireDropReason):
+            self.dropped[outcome] += 1
+        else:
+            self.accepted += 1
+
+    @property
+    def dropped_total(self) -> int:
+        return sum(self.dropped.values())
+
+    def dropped_as_dict(self) -> dict[str, int]:
+        """One entry per reason value, for telemetry and summary.json."""
+        return {reason.value: count for reason, count in self.dropped.items()}
 
 
 @dataclass(frozen=True)
@@ -107,34 +164,54 @@ def encode_sense(message: SenseMessage) -> bytes:
     return head + struct.pack(f"<{len(echoes)}f", *echoes)
 
 
-def decode_sense(data: bytes) -> SenseMessage | None:
-    try:
-        if len(data) < _SENSE_HEAD.size:
-            return None
-        version, n_sonar, flags, radio_frames, tick, t_ns, c0, c1, c2, c3, x, y, heading, stamp = (
-            _SENSE_HEAD.unpack_from(data)
-        )
-        if version != WIRE_VERSION or n_sonar > MAX_SONAR or flags & ~7:
-            return None
-        if len(data) != _SENSE_HEAD.size + 4 * n_sonar:
-            return None
-        echoes = struct.unpack_from(f"<{n_sonar}f", data, _SENSE_HEAD.size)
-        if not all(math.isfinite(v) for v in (x, y, heading, *echoes)):
-            return None
-        fix = None
-        if flags & _FIX_PRESENT:
-            fix = FixSample(x, y, heading, stamp, valid=bool(flags & _FIX_VALID))
-        return SenseMessage(
-            encoder_counts=(c0, c1, c2, c3),
-            sonar_echo_times_s=tuple(None if t < 0.0 else float(t) for t in echoes),
-            fix=fix,
-            tick=tick,
-            t_ns=t_ns,
-            lockstep=bool(flags & _LOCKSTEP),
-            radio_frames=radio_frames,
-        )
-    except (struct.error, TypeError):
-        return None
+def parse_sense(data: object, sonar_count: int | None = None) -> SenseMessage | WireDropReason:
+    """The sense message in `data`, or why it is refused; `sonar_count`: the receiver's
+    transducers (None: any count up to `MAX_SONAR`)."""
+    raw = _as_bytes(data)
+    if raw is None:
+        return WireDropReason.NOT_BYTES
+    if len(raw) < _SENSE_HEAD.size:
+        return WireDropReason.TOO_SHORT
+    version, n_sonar, flags, radio_frames, tick, t_ns, c0, c1, c2, c3, x, y, heading, stamp = (
+        _SENSE_HEAD.unpack_from(raw)
+    )
+    if version != WIRE_VERSION:
+        return WireDropReason.UNSUPPORTED_VERSION
+    if n_sonar > MAX_SONAR:
+        return WireDropReason.TOO_MANY_SONARS
+    size = _SENSE_HEAD.size + 4 * n_sonar
+    if len(raw) != size:
+        return WireDropReason.TOO_SHORT if len(raw) < size else WireDropReason.TOO_LONG
+    if flags & ~_SENSE_FLAGS:
+        return WireDropReason.RESERVED_BITS
+    if sonar_count is not None and n_sonar != sonar_count:
+        return WireDropReason.WRONG_SONAR_COUNT
+    echoes = struct.unpack_from(f"<{n_sonar}f", raw, _SENSE_HEAD.size)
+    if not all(math.isfinite(v) for v in (x, y, heading, *echoes)):
+        return WireDropReason.NON_FINITE
+    if (
+        abs(x) > MAX_ABS_FIX_M
+        or abs(y) > MAX_ABS_FIX_M
+        or max(echoes, default=0.0) > MAX_ECHO_TIME_S
+    ):
+        return WireDropReason.OUT_OF_RANGE
+    fix = None
+    if flags & _FIX_PRESENT:
+        fix = FixSample(x, y, heading, stamp, valid=bool(flags & _FIX_VALID))
+    return SenseMessage(
+        encoder_counts=(c0, c1, c2, c3),
+        sonar_echo_times_s=tuple(None if t < 0.0 else float(t) for t in echoes),
+        fix=fix,
+        tick=tick,
+        t_ns=t_ns,
+        lockstep=bool(flags & _LOCKSTEP),
+        radio_frames=radio_frames,
+    )
+
+
+def decode_sense(data: object, sonar_count: int | None = None) -> SenseMessage | None:
+    message = parse_sense(data, sonar_count)
+    return None if isinstance(message, WireDropReason) else message
 
 
 def encode_act(message: ActMessage) -> bytes:
@@ -149,26 +226,36 @@ def encode_act(message: ActMessage) -> bytes:
     )
 
 
-def decode_act(data: bytes) -> ActMessage | None:
-    try:
-        if len(data) != _ACT.size:
-            return None
-        version, bits, expired, radio_frames, tick, d0, d1, d2, d3 = _ACT.unpack(data)
-        duty = (d0, d1, d2, d3)
-        if version != WIRE_VERSION or bits > 0xF or expired > 1:
-            return None
-        if not all(math.isfinite(d) and -1.0 <= d <= 1.0 for d in duty):
-            return None
-        enabled = tuple(bool(bits >> i & 1) for i in range(4))
-        return ActMessage(
-            tick=tick,
-            duty=duty,
-            enabled=(enabled[0], enabled[1], enabled[2], enabled[3]),
-            watchdog_expired=bool(expired),
-            radio_frames=radio_frames,
-        )
-    except (struct.error, TypeError):
-        return None
+def parse_act(data: object) -> ActMessage | WireDropReason:
+    """The act message in `data`, or why it is refused."""
+    raw = _as_bytes(data)
+    if raw is None:
+        return WireDropReason.NOT_BYTES
+    if len(raw) != _ACT.size:
+        return WireDropReason.TOO_SHORT if len(raw) < _ACT.size else WireDropReason.TOO_LONG
+    version, bits, expired, radio_frames, tick, d0, d1, d2, d3 = _ACT.unpack(raw)
+    duty = (d0, d1, d2, d3)
+    if version != WIRE_VERSION:
+        return WireDropReason.UNSUPPORTED_VERSION
+    if bits > 0xF or expired > 1:
+        return WireDropReason.RESERVED_BITS
+    if not all(math.isfinite(d) for d in duty):
+        return WireDropReason.NON_FINITE
+    if not all(-1.0 <= d <= 1.0 for d in duty):
+        return WireDropReason.OUT_OF_RANGE
+    enabled = tuple(bool(bits >> i & 1) for i in range(4))
+    return ActMessage(
+        tick=tick,
+        duty=duty,
+        enabled=(enabled[0], enabled[1], enabled[2], enabled[3]),
+        watchdog_expired=bool(expired),
+        radio_frames=radio_frames,
+    )
+
+
+def decode_act(data: object) -> ActMessage | None:
+    message = parse_act(data)
+    return None if isinstance(message, WireDropReason) else message
 
 
 def encode_clock(message: ClockMessage) -> bytes:
@@ -177,13 +264,32 @@ def encode_clock(message: ClockMessage) -> bytes:
     )
 
 
-def decode_clock(data: bytes) -> ClockMessage | None:
+def parse_clock(data: object) -> ClockMessage | WireDropReason:
+    """The clock message in `data`, or why it is refused."""
+    raw = _as_bytes(data)
+    if raw is None:
+        return WireDropReason.NOT_BYTES
+    if len(raw) != _CLOCK.size:
+        return WireDropReason.TOO_SHORT if len(raw) < _CLOCK.size else WireDropReason.TOO_LONG
+    version, lockstep, pad, tick, t_ns, dt_ns = _CLOCK.unpack(raw)
+    if version != WIRE_VERSION:
+        return WireDropReason.UNSUPPORTED_VERSION
+    if lockstep > 1 or pad:
+        return WireDropReason.RESERVED_BITS
+    if dt_ns == 0:
+        return WireDropReason.OUT_OF_RANGE
+    return ClockMessage(tick=tick, t_ns=t_ns, dt_ns=dt_ns, lockstep=bool(lockstep))
+
+
+def decode_clock(data: object) -> ClockMessage | None:
+    message = parse_clock(data)
+    return None if isinstance(message, WireDropReason) else message
+
+
+def _as_bytes(data: object) -> bytes | None:
+    if not isinstance(data, bytes | bytearray | memoryview):
+        return None
     try:
-        if len(data) != _CLOCK.size:
-            return None
-        version, lockstep, _, tick, t_ns, dt_ns = _CLOCK.unpack(data)
-        if version != WIRE_VERSION or lockstep > 1:
-            return None
-        return ClockMessage(tick=tick, t_ns=t_ns, dt_ns=dt_ns, lockstep=bool(lockstep))
-    except (struct.error, TypeError):
+        return bytes(data)
+    except (TypeError, ValueError):  # e.g. a released memoryview
         return None

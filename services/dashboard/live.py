@@ -20,11 +20,13 @@ Ctrl-C still stops the dashboard while the swarm is not up.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import socket
 import threading
 import uuid
-from collections.abc import Callable
+from collections import Counter
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -35,7 +37,12 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from robot_firmware.net.keys import SwarmKeys
-from robot_firmware.net.messages import TelemetryMessage, TruthMessage, parse_message
+from robot_firmware.net.messages import (
+    MessageDropReason,
+    TelemetryMessage,
+    TruthMessage,
+    parse_message_or_reason,
+)
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
@@ -101,6 +108,29 @@ def keep_previous_recording(path: Path) -> Path | None:
     return kept
 
 
+MAX_DRAWN_MAGNITUDE = 3.4e38
+"""Rerun keeps positions and scalars as float32: a larger value would overflow."""
+
+
+def _number_problem(value: object) -> str | None:
+    """`non_finite` or `out_of_range` for the first float in `value` (a model dump) that no
+    producer sends (their JSON writes NaN as null) and the viewer cannot hold; else None."""
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return "non_finite"
+        return "out_of_range" if abs(value) > MAX_DRAWN_MAGNITUDE else None
+    if isinstance(value, dict):
+        children: Iterable[object] = value.values()
+    elif isinstance(value, list | tuple):
+        children = value
+    else:
+        return None
+    for child in children:
+        if (problem := _number_problem(child)) is not None:
+            return problem
+    return None
+
+
 @dataclass(frozen=True)
 class _Sample:
     kind: Literal["truth", "telemetry", "liveliness"]
@@ -125,6 +155,12 @@ class DashboardService:
         self._connect_error: BaseException | None = None
         self._connected = threading.Event()
         self.counts = {"truth": 0, "telemetry": 0, "liveliness": 0, "rejected": 0}
+        self.rejected: Counter[str] = Counter()
+        """Rejected samples per reason: `not_json`, `does_not_fit` (MessageDropReason),
+        `non_finite`, `out_of_range` (a number no producer sends), `missing_robots` (a truth
+        sample without every robot of the scenario), `unknown_robot` (telemetry of a robot
+        the scenario does not name), `nothing_to_draw` (telemetry without an estimate or
+        gains)."""
 
     # -- zenoh callbacks: queue and return ------------------------------------------------
 
@@ -210,19 +246,36 @@ class DashboardService:
             log.info("%s %s %s", role, name, "joined" if sample.alive else "left")
             self._log(recording, self.scene.on_liveliness(role, name, sample.alive))
             return
-        if sample.kind == "truth":
-            truth = parse_message(TruthMessage, sample.payload)
-            update = None if truth is None else self.scene.on_truth(truth)
-        else:
-            telemetry = parse_message(TelemetryMessage, sample.payload)
-            update = None if telemetry is None else self.scene.on_telemetry(telemetry)
-        if update is None:
+        update = self.update_for(sample.kind, sample.payload)
+        if isinstance(update, str):
             self.counts["rejected"] += 1
+            self.rejected[update] += 1
             if self.counts["rejected"] == 1:
-                log.warning("ignoring a %s sample on %s that does not fit", sample.kind, sample.key)
+                log.warning("ignoring a %s sample on %s: %s", sample.kind, sample.key, update)
             return
         self.counts[sample.kind] += 1
         self._log(recording, update)
+
+    def update_for(self, kind: Literal["truth", "telemetry"], payload: bytes) -> Update | str:
+        """The records one truth or telemetry sample makes, or why it is rejected (a reason
+        of `rejected`).  Nothing is logged here."""
+        if kind == "truth":
+            truth = parse_message_or_reason(TruthMessage, payload)
+            if isinstance(truth, MessageDropReason):
+                return truth.value
+            if (problem := _number_problem(truth.model_dump())) is not None:
+                return problem
+            update = self.scene.on_truth(truth)
+            return "missing_robots" if update is None else update
+        telemetry = parse_message_or_reason(TelemetryMessage, payload)
+        if isinstance(telemetry, MessageDropReason):
+            return telemetry.value
+        if (problem := _number_problem(telemetry.model_dump())) is not None:
+            return problem
+        update = self.scene.on_telemetry(telemetry)
+        if update is None:
+            return "unknown_robot" if telemetry.robot not in self.scene.names else "nothing_to_draw"
+        return update
 
     # -- main loop -----------------------------------------------------------------------
 
@@ -261,11 +314,12 @@ class DashboardService:
             recording.flush(timeout_sec=10.0)
             recording.disconnect()
         log.info(
-            "stopped: %d truth, %d telemetry, %d liveliness samples, %d rejected, %d dropped",
+            "stopped: %d truth, %d telemetry, %d liveliness samples, %d rejected %s, %d dropped",
             self.counts["truth"],
             self.counts["telemetry"],
             self.counts["liveliness"],
             self.counts["rejected"],
+            dict(self.rejected),
             self.dropped_samples,
         )
         return code

@@ -32,15 +32,17 @@ from urllib.parse import quote
 
 from pydantic import ValidationError
 
-from robot_firmware.net.admin import AdminQueue
+from robot_firmware.net.admin import AdminQueue, Handler
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import (
     AdminError,
+    AdminRefusal,
     KillReply,
     LauncherStatusReply,
     ProcessStatus,
     RestartReply,
     RobotRequest,
+    refusal_of,
 )
 from robot_firmware.net.session import open_client
 from swarm_config.settings import describe_validation_error
@@ -199,9 +201,14 @@ class Launcher:
         try:
             name = RobotRequest.model_validate_json(body).robot
         except ValidationError as exc:
-            return AdminError(error=describe_validation_error("invalid request", exc))
+            return AdminError(
+                error=describe_validation_error("invalid request", exc), reason=refusal_of(exc)
+            )
         if name not in self.plan.robots:
-            return AdminError(error=f"no robot {name!r}; robots: {', '.join(self.plan.robots)}")
+            return AdminError(
+                error=f"no robot {name!r}; robots: {', '.join(self.plan.robots)}",
+                reason=AdminRefusal.UNKNOWN_ROBOT,
+            )
         return name
 
     def _kill_request(self, body: bytes) -> KillReply | AdminError:
@@ -216,14 +223,16 @@ class Launcher:
         process = self.children[name].process
         return RestartReply(restarted=name, pid=process.pid if process else None)
 
+    def admin_handlers(self) -> dict[str, Handler]:
+        """The launcher's admin verbs, served from its supervision loop."""
+        return {
+            "status": lambda _body: LauncherStatusReply(processes=self.status()),
+            "kill": self._kill_request,
+            "restart": self._restart_request,
+        }
+
     def _serve(self) -> None:
-        self._admin.serve(
-            {
-                "status": lambda _body: LauncherStatusReply(processes=self.status()),
-                "kill": self._kill_request,
-                "restart": self._restart_request,
-            }
-        )
+        self._admin.serve(self.admin_handlers())
 
     def up(self, on_ready: Callable[[], None] | None = None) -> int:
         """Start everything and supervise until the world ends or a stop is asked."""

@@ -1,3 +1,4 @@
+import math
 import struct
 
 import pytest
@@ -6,16 +7,22 @@ from hypothesis import strategies as st
 
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.wire import (
+    MAX_SONAR,
     ActMessage,
     ClockMessage,
     FixSample,
     SenseMessage,
+    WireCounters,
+    WireDropReason,
     decode_act,
     decode_clock,
     decode_sense,
     encode_act,
     encode_clock,
     encode_sense,
+    parse_act,
+    parse_clock,
+    parse_sense,
 )
 
 
@@ -76,3 +83,66 @@ def test_keys_follow_the_design_and_names_are_checked() -> None:
         check_name("robot", "Robot 1")
     with pytest.raises(ValueError):
         SwarmKeys("a/b")
+
+
+def _act_with_duty(duty_0: float) -> bytes:
+    return struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, duty_0, 0.0, 0.0, 0.0)
+
+
+def test_every_refusal_is_named_in_check_order() -> None:
+    sense = encode_sense(SenseMessage((0, 0, 0, 0), (0.01, None), None))
+    act = encode_act(ActMessage(1, (0.0, 0.0, 0.0, 0.0), (True,) * 4, False))
+    clock = encode_clock(ClockMessage(1, 10, 10, False))
+    nan_fix = bytearray(sense)
+    struct.pack_into("<d", nan_fix, 52, float("nan"))
+    far_fix = bytearray(sense)
+    struct.pack_into("<d", far_fix, 60, 2e4)
+    late_echo = bytearray(sense)
+    struct.pack_into("<f", late_echo, 84, 2.0)
+    cases = [
+        (parse_sense("not bytes", 2), WireDropReason.NOT_BYTES),
+        (parse_sense(sense[:10], 2), WireDropReason.TOO_SHORT),
+        (parse_sense(sense[:-1], 2), WireDropReason.TOO_SHORT),
+        (parse_sense(sense + b"\0", 2), WireDropReason.TOO_LONG),
+        (parse_sense(b"\x02" + sense[1:], 2), WireDropReason.UNSUPPORTED_VERSION),
+        (
+            parse_sense(sense[:1] + bytes([MAX_SONAR + 1]) + sense[2:], 2),
+            WireDropReason.TOO_MANY_SONARS,
+        ),
+        (parse_sense(sense[:2] + b"\x08" + sense[3:], 2), WireDropReason.RESERVED_BITS),
+        (parse_sense(sense, 3), WireDropReason.WRONG_SONAR_COUNT),
+        (parse_sense(bytes(nan_fix), 2), WireDropReason.NON_FINITE),
+        (parse_sense(bytes(far_fix), 2), WireDropReason.OUT_OF_RANGE),
+        (parse_sense(bytes(late_echo), 2), WireDropReason.OUT_OF_RANGE),
+        (parse_act(act[:-1]), WireDropReason.TOO_SHORT),
+        (parse_act(act[:1] + b"\x10" + act[2:]), WireDropReason.RESERVED_BITS),
+        (parse_act(act[:2] + b"\x02" + act[3:]), WireDropReason.RESERVED_BITS),
+        (
+            parse_act(struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, math.inf, 0, 0, 0)),
+            WireDropReason.NON_FINITE,
+        ),
+        (
+            parse_act(struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, 1.5, 0, 0, 0)),
+            WireDropReason.OUT_OF_RANGE,
+        ),
+        (parse_clock(clock + b"\0"), WireDropReason.TOO_LONG),
+        (parse_clock(clock[:2] + b"\x01\x00" + clock[4:]), WireDropReason.RESERVED_BITS),
+        (parse_clock(encode_clock(ClockMessage(1, 10, 0, False))), WireDropReason.OUT_OF_RANGE),
+    ]
+    for outcome, reason in cases:
+        assert outcome == reason
+    assert parse_sense(memoryview(sense), 2) == decode_sense(sense)
+    assert isinstance(parse_sense(sense, None), SenseMessage)
+
+
+def test_counters_count_each_message_once_under_its_reason() -> None:
+    counters = WireCounters()
+    for outcome in (
+        WireDropReason.TOO_SHORT,
+        WireDropReason.TOO_SHORT,
+        ClockMessage(1, 1, 1, True),
+    ):
+        counters.count(outcome)
+    assert counters.accepted == 1 and counters.dropped_total == 2
+    assert counters.dropped_as_dict()["too_short"] == 2
+    assert set(counters.dropped_as_dict()) == {reason.value for reason in WireDropReason}

@@ -1,0 +1,114 @@
+"""Fuzzing telemetry and truth as the dashboard reads them (services/dashboard/live.py
+`update_for`: `parse_message_or_reason`, then `SwarmScene.on_truth` / `on_telemetry`).
+
+10,000 samples of each: random bytes, random JSON, and valid messages with a field mutated
+(NaN or infinity, wrong types, huge arrays, robots the scenario does not name, fields missing
+or unknown).  Nothing may raise; every sample is either drawn or rejected under a named reason,
+and a rejected sample leaves the scene (trails, clock, radio window) as it was.
+"""
+
+from __future__ import annotations
+
+import copy
+import random
+from collections.abc import Callable
+from typing import Any, Literal
+
+import pytest
+
+from services.dashboard.live import DashboardConfig, DashboardService
+from swarm_config.scenario import load_scenario
+from tests.fuzz.generate import json_bytes, mutate_json, random_bytes, random_json
+from tests.fuzz.ledger import ACCEPTED, LEDGER
+from tests.fuzz.processes import PAPER, make_robot, make_world
+
+INPUTS = 10_000
+REASONS = frozenset(
+    ("not_json", "does_not_fit", "non_finite", "out_of_range", "missing_robots")
+    + ("unknown_robot", "nothing_to_draw")
+)
+
+
+@pytest.fixture
+def dashboard() -> DashboardService:
+    return DashboardService(DashboardConfig(scenario=PAPER), load_scenario(PAPER))
+
+
+def _scene_state(dashboard: DashboardService) -> object:
+    scene = dashboard.scene
+    return (
+        scene.last_t_s,
+        {n: tuple(t) for n, t in scene._trails.items()},
+        tuple(scene._radio.samples),
+        scene._next_trail_log_s,
+    )
+
+
+def fuzz_samples(
+    target: str,
+    dashboard: DashboardService,
+    kind: Literal["truth", "telemetry"],
+    valid: Callable[[random.Random, int], dict[str, Any]],
+    seed: int,
+) -> None:
+    rng = random.Random(seed)
+    for i in range(INPUTS):
+        roll = rng.random()
+        if roll < 0.1:
+            payload = random_bytes(rng, 200)
+        elif roll < 0.2:
+            payload = json_bytes(random_json(rng))
+        elif roll < 0.9:
+            payload = json_bytes(mutate_json(rng, valid(rng, i)))
+        else:
+            payload = json_bytes(valid(rng, i))
+        before = _scene_state(dashboard)
+        update = dashboard.update_for(kind, payload)
+        if isinstance(update, str):
+            assert update in REASONS, update
+            if update not in ("unknown_robot", "nothing_to_draw"):  # the scene looked at it
+                assert _scene_state(dashboard) == before, (payload[:300], update)
+            LEDGER.record(target, update)
+        else:
+            assert update.records
+            LEDGER.record(target, ACCEPTED)
+    assert LEDGER.outcomes[target][ACCEPTED] > INPUTS // 20
+
+
+def test_truth_samples(dashboard: DashboardService) -> None:
+    world = make_world()
+    world.barrier.join("robot1")
+    template = world._status()  # a live world's poses and radio counters
+    truth: dict[str, Any] = {
+        "t_s": 0.0,
+        "tick": 0,
+        "robots": {
+            n: {"pose": [0.1 * i, -0.2, 0.5], "alive": True} for i, n in enumerate(template.robots)
+        },
+        "reference": [0.0, 0.0, 0.0],
+        "radio": template.radio.model_dump(mode="json"),
+    }
+
+    def valid(rng: random.Random, i: int) -> dict[str, Any]:
+        message = copy.deepcopy(truth)
+        message["t_s"] = i * 0.05
+        message["tick"] = i * 5
+        for robot in message["robots"].values():
+            robot["pose"][0] += rng.uniform(-0.01, 0.01)
+        return message
+
+    fuzz_samples("dashboard truth", dashboard, "truth", valid, 8)
+
+
+def test_telemetry_samples(dashboard: DashboardService) -> None:
+    robot = make_robot("robot2")
+    robot.control_tick(robot.process.period_ns)
+    template = robot.process.telemetry(robot.process.period_ns).model_dump(mode="json")
+
+    def valid(rng: random.Random, i: int) -> dict[str, Any]:
+        message = copy.deepcopy(template)
+        message["robot"] = rng.choice(("robot1", "robot2", "robot3"))
+        message["t_s"] = i * 0.05
+        return message
+
+    fuzz_samples("dashboard telemetry", dashboard, "telemetry", valid, 9)
