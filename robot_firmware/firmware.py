@@ -124,7 +124,7 @@ class Firmware:
             slot_distance_m=np.array(mission.slot_distance_m),
             slot_angle_rad=np.array(mission.slot_angle_rad),
         )
-        self.rules = mission.rule_base.expand_dims((0,))  # broadcast over the three axes
+        self.rules = mission.rule_base  # one scheduler for the three axes
         self.peer_pose = np.zeros((n, 3))
         self.peer_rate = np.zeros((n, 3))
         self.peer_stamp_s = np.full(n, -np.inf)
@@ -152,7 +152,7 @@ class Firmware:
 
     def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
         """Use another fuzzy scheduler from the next tick on (call between ticks)."""
-        self.rules = rule_base.expand_dims((0,))
+        self.rules = rule_base
 
     def boot(self, tick_fabric: Callable[[int], None], pll_timeout_ns: int = 1_000_000) -> None:
         """Identify the fabric, wait for the PLL, arm the motors and the watchdog."""

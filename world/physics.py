@@ -16,25 +16,38 @@ batch simulator call the same function with their own step.
 Body contacts are circles against circles: an overlap is pushed apart along the line of centres
 and reported so that collisions can be counted.  All functions are pure; randomness comes from
 an injected generator.
+
+The math is compiled (numba): `advance_body` steps one body and `push_apart` one world's
+contacts; `step_bodies` and `resolve_contacts` run them over any batch shape, the batch
+simulator's B worlds in parallel.  tests/control/oracle.py states the same steps in numpy.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 from numpy.typing import NDArray
 
-from robot_firmware.control.angles import wrap_angle_rad
-from robot_firmware.control.kinematics import WHEEL_ANGLE_OFFSET_RAD
+from robot_firmware.control.angles import wrap_angle
+from robot_firmware.control.kinematics import body_rate
+from robot_firmware.control.rows import as_rows, from_rows
 from swarm_config.body import BodyParams
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
 
-_GAUSS_NODES = 0.5 * (1.0 + np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)]))
-_GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
+_GAUSS_NODES = (
+    0.5 * (1.0 - math.sqrt(0.6)),
+    0.5,
+    0.5 * (1.0 + math.sqrt(0.6)),
+)
+_GAUSS_WEIGHTS = (5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0)
+PARALLEL_MIN_ROWS = 64
+"""Batches of at least this many rows run their kernel on every core (numba prange)."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +70,99 @@ class BodyState:
         )
 
 
+@njit(cache=True)
+def advance_body(
+    pose: FloatArray,
+    wheel_speed_radps: FloatArray,
+    wheel_angle_rad: FloatArray,
+    slip: FloatArray,
+    duty: FloatArray,
+    slip_noise: FloatArray,
+    dt_s: float,
+    body: tuple[float, float, float, float, float, float],
+    pose_out: FloatArray,
+    wheel_speed_out: FloatArray,
+    wheel_angle_out: FloatArray,
+    slip_out: FloatArray,
+) -> None:
+    """One body over dt_s with its duty held; `body` is `_body_constants(params)`."""
+    tau, no_load_radps, wheel_radius_m, wheel_base_m, correlation_s, slip_std = body
+    decay = math.exp(-dt_s / tau)
+    steady = np.empty(4)
+    fading = np.empty(4)
+    for k in range(4):
+        target = min(max(duty[k], -1.0), 1.0) * no_load_radps
+        transient = wheel_speed_radps[k] - target
+        wheel_speed_out[k] = target + transient * decay
+        wheel_angle_out[k] = wheel_angle_rad[k] + target * dt_s + transient * (tau * (1.0 - decay))
+        # Rim ground speeds v(t) = r(1+s)·(target + transient·e^(-t/τ)): a constant and a
+        # decaying part, each mapped to the body rates of eq. 11 (at θ + π/4 = π/4, unrotated).
+        gain = wheel_radius_m * (1.0 + slip[k])
+        steady[k] = gain * target
+        fading[k] = gain * transient
+    L4 = 4.0 * wheel_base_m
+    a_ss = 0.5 * (steady[2] - steady[0])
+    b_ss = 0.5 * (steady[3] - steady[1])
+    w_ss = (steady[0] + steady[1] + steady[2] + steady[3]) / L4
+    a_tr = 0.5 * (fading[2] - fading[0])
+    b_tr = 0.5 * (fading[3] - fading[1])
+    w_tr = (fading[0] + fading[1] + fading[2] + fading[3]) / L4
+    theta0 = pose[2]
+    dx = 0.0
+    dy = 0.0
+    for q in range(3):
+        t = dt_s * _GAUSS_NODES[q]
+        e_t = math.exp(-t / tau)
+        theta_t = theta0 + w_ss * t + w_tr * (tau * (1.0 - e_t))
+        a_t = a_ss + a_tr * e_t
+        b_t = b_ss + b_tr * e_t
+        # eq. 11 for half-differences a, b: (-2a, -2b, 2a, 2b) as rim speeds.
+        xd, yd, _ = body_rate(-a_t, -b_t, a_t, b_t, theta_t, wheel_base_m)
+        weight = dt_s * _GAUSS_WEIGHTS[q]
+        dx += weight * xd
+        dy += weight * yd
+    dtheta = w_ss * dt_s + w_tr * (tau * (1.0 - decay))
+    pose_out[0] = pose[0] + dx
+    pose_out[1] = pose[1] + dy
+    pose_out[2] = wrap_angle(theta0 + dtheta)
+    rho = math.exp(-dt_s / correlation_s)
+    spread = slip_std * math.sqrt(1.0 - rho * rho)
+    for k in range(4):
+        slip_out[k] = rho * slip[k] + spread * slip_noise[k]
+
+
+def _body_constants(params: BodyParams) -> tuple[float, float, float, float, float, float]:
+    return (
+        float(params.motor_time_constant_s),
+        float(params.motor_no_load_speed_radps),
+        float(params.wheel_radius_m),
+        float(params.wheel_base_m),
+        float(params.slip_correlation_time_s),
+        float(params.slip_std),
+    )
+
+
+def _make_step_rows(parallel: bool):  # type: ignore[no-untyped-def]
+    def step_rows(pose, speed, angle, slip, duty, noise, dt_s, body):  # type: ignore[no-untyped-def]
+        n = pose.shape[0]
+        pose_out = np.empty((n, 3))
+        speed_out = np.empty((n, 4))
+        angle_out = np.empty((n, 4))
+        slip_out = np.empty((n, 4))
+        for i in prange(n):
+            advance_body(
+                pose[i], speed[i], angle[i], slip[i], duty[i], noise[i], dt_s, body,
+                pose_out[i], speed_out[i], angle_out[i], slip_out[i],
+            )  # fmt: skip
+        return pose_out, speed_out, angle_out, slip_out
+
+    return njit(cache=True, parallel=parallel)(step_rows)
+
+
+_step_rows_serial = _make_step_rows(parallel=False)
+_step_rows_parallel = _make_step_rows(parallel=True)
+
+
 def step_bodies(
     state: BodyState,
     duty: FloatArray,
@@ -66,54 +172,27 @@ def step_bodies(
 ) -> BodyState:
     """Advance the bodies by dt_s with the duty held constant.
 
-    slip_noise: standard normal draws (..., 4) for the slip process (pass zeros for no slip).
+    slip_noise: standard normal draws (..., 4) for the slip process (pass zeros for no slip);
+    duty and slip_noise broadcast against the bodies' batch shape.
     """
-    tau = params.motor_time_constant_s
-    target = np.clip(duty, -1.0, 1.0) * params.motor_no_load_speed_radps
-    decay = np.exp(-dt_s / tau)
-    transient = state.wheel_speed_radps - target
-    wheel_end = target + transient * decay
-    wheel_angle = state.wheel_angle_rad + target * dt_s + transient * (tau * (1.0 - decay))
-
-    # Rim ground speeds v(t) = r(1+s)·(target + transient·e^(-t/τ)), split into the constant and
-    # the decaying part of the three body-rate components of eq. 11.
-    gain = params.wheel_radius_m * (1.0 + state.slip)
-    steady = gain * target
-    fading = gain * transient
-    L4 = 4.0 * params.wheel_base_m
-
-    def split(v: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        a = 0.5 * (v[..., 2] - v[..., 0])
-        b = 0.5 * (v[..., 3] - v[..., 1])
-        w = (v[..., 0] + v[..., 1] + v[..., 2] + v[..., 3]) / L4
-        return a, b, w
-
-    a_ss, b_ss, w_ss = split(steady)
-    a_tr, b_tr, w_tr = split(fading)
-    t = dt_s * _GAUSS_NODES  # (3,)
-    e_t = np.exp(-t / tau)
-    theta0 = state.pose[..., 2:3]
-    theta_t = theta0 + w_ss[..., None] * t + w_tr[..., None] * (tau * (1.0 - e_t))
-    a_t = a_ss[..., None] + a_tr[..., None] * e_t
-    b_t = b_ss[..., None] + b_tr[..., None] * e_t
-    phi = theta_t + WHEEL_ANGLE_OFFSET_RAD
-    s = np.sin(phi)
-    c = np.cos(phi)
-    weights = dt_s * _GAUSS_WEIGHTS
-    dx = np.sum(weights * (s * a_t + c * b_t), axis=-1)
-    dy = np.sum(weights * (-c * a_t + s * b_t), axis=-1)
-    dtheta = w_ss * dt_s + w_tr * (tau * (1.0 - decay))
-    pose = np.stack(
-        (
-            state.pose[..., 0] + dx,
-            state.pose[..., 1] + dy,
-            wrap_angle_rad(state.pose[..., 2] + dtheta),
-        ),
-        axis=-1,
+    batch, (pose, speed, angle, slip, held, noise) = as_rows(
+        (state.pose, 1, np.float64),
+        (state.wheel_speed_radps, 1, np.float64),
+        (state.wheel_angle_rad, 1, np.float64),
+        (state.slip, 1, np.float64),
+        (duty, 1, np.float64),
+        (slip_noise, 1, np.float64),
     )
-    rho = np.exp(-dt_s / params.slip_correlation_time_s)
-    slip = rho * state.slip + params.slip_std * np.sqrt(1.0 - rho * rho) * slip_noise
-    return BodyState(pose=pose, wheel_speed_radps=wheel_end, wheel_angle_rad=wheel_angle, slip=slip)
+    kernel = _step_rows_parallel if pose.shape[0] >= PARALLEL_MIN_ROWS else _step_rows_serial
+    pose_out, speed_out, angle_out, slip_out = kernel(
+        pose, speed, angle, slip, held, noise, float(dt_s), _body_constants(params)
+    )
+    return BodyState(
+        pose=from_rows(pose_out, batch),
+        wheel_speed_radps=from_rows(speed_out, batch),
+        wheel_angle_rad=from_rows(angle_out, batch),
+        slip=from_rows(slip_out, batch),
+    )
 
 
 def encoder_counts(wheel_angle_rad: FloatArray, counts_per_rev: int) -> IntArray:
@@ -129,6 +208,76 @@ class ContactReport:
     robot_obstacle: BoolArray
 
 
+@njit(cache=True)
+def push_apart(
+    positions_m: FloatArray,
+    body_radius_m: float,
+    obstacle_centres_m: FloatArray,
+    obstacle_radii_m: FloatArray,
+    corrected_out: FloatArray,
+    robot_robot_out: BoolArray,
+    robot_obstacle_out: BoolArray,
+) -> None:
+    """One world's contacts: positions (N, 2), obstacles (M, 2) and (M,).
+
+    Each robot is pushed by half the overlap of every robot it touches (from the positions
+    before correction), then by the whole overlap of every obstacle it touches.
+    """
+    n = positions_m.shape[0]
+    m = obstacle_radii_m.shape[0]
+    for i in range(n):
+        push_x = 0.0
+        push_y = 0.0
+        for j in range(n):
+            dx = positions_m[i, 0] - positions_m[j, 0]
+            dy = positions_m[i, 1] - positions_m[j, 1]
+            dist = math.hypot(dx, dy)
+            overlap = 2.0 * body_radius_m - dist
+            touching = overlap > 0.0 and i != j
+            robot_robot_out[i, j] = touching
+            reach = max(dist, 1e-9)
+            share = 0.5 * overlap if touching else 0.0
+            push_x += share * (dx / reach)
+            push_y += share * (dy / reach)
+        x = positions_m[i, 0] + push_x
+        y = positions_m[i, 1] + push_y
+        push_x = 0.0
+        push_y = 0.0
+        for j in range(m):
+            dx = x - obstacle_centres_m[j, 0]
+            dy = y - obstacle_centres_m[j, 1]
+            dist = math.hypot(dx, dy)
+            overlap = body_radius_m + obstacle_radii_m[j] - dist
+            touching = overlap > 0.0
+            robot_obstacle_out[i, j] = touching
+            reach = max(dist, 1e-9)
+            share = overlap if touching else 0.0
+            push_x += share * (dx / reach)
+            push_y += share * (dy / reach)
+        corrected_out[i, 0] = x + push_x
+        corrected_out[i, 1] = y + push_y
+
+
+def _make_contact_rows(parallel: bool):  # type: ignore[no-untyped-def]
+    def contact_rows(positions, body_radius_m, centres, radii):  # type: ignore[no-untyped-def]
+        worlds, n = positions.shape[0], positions.shape[1]
+        corrected = np.empty((worlds, n, 2))
+        robot_robot = np.empty((worlds, n, n), dtype=np.bool_)
+        robot_obstacle = np.empty((worlds, n, radii.shape[0]), dtype=np.bool_)
+        for w in prange(worlds):
+            push_apart(
+                positions[w], body_radius_m, centres, radii,
+                corrected[w], robot_robot[w], robot_obstacle[w],
+            )  # fmt: skip
+        return corrected, robot_robot, robot_obstacle
+
+    return njit(cache=True, parallel=parallel)(contact_rows)
+
+
+_contact_rows_serial = _make_contact_rows(parallel=False)
+_contact_rows_parallel = _make_contact_rows(parallel=True)
+
+
 def resolve_contacts(
     positions_m: FloatArray,
     body_radius_m: float,
@@ -139,21 +288,12 @@ def resolve_contacts(
 
     Returns the corrected positions and which pairs were in contact before correction.
     """
-    n = positions_m.shape[-2]
-    delta = positions_m[..., :, None, :] - positions_m[..., None, :, :]
-    dist = np.hypot(delta[..., 0], delta[..., 1])
-    overlap_rr = 2.0 * body_radius_m - dist
-    not_self = ~np.eye(n, dtype=bool)
-    touching_rr = (overlap_rr > 0.0) & not_self
-    away = delta / np.maximum(dist, 1e-9)[..., None]
-    push_rr = np.where(touching_rr, 0.5 * overlap_rr, 0.0)[..., None] * away
-    corrected = positions_m + np.sum(push_rr, axis=-2)
-
-    to_body = corrected[..., :, None, :] - obstacle_centres_m
-    dist_o = np.hypot(to_body[..., 0], to_body[..., 1])
-    overlap_o = body_radius_m + obstacle_radii_m - dist_o
-    touching_o = overlap_o > 0.0
-    away_o = to_body / np.maximum(dist_o, 1e-9)[..., None]
-    push_o = np.where(touching_o, overlap_o, 0.0)[..., None] * away_o
-    corrected = corrected + np.sum(push_o, axis=-2)
-    return corrected, ContactReport(robot_robot=touching_rr, robot_obstacle=touching_o)
+    batch, (positions,) = as_rows((positions_m, 2, np.float64))
+    centres = np.asarray(obstacle_centres_m, dtype=np.float64).reshape(-1, 2)
+    radii = np.asarray(obstacle_radii_m, dtype=np.float64).reshape(-1)
+    rows = positions.shape[0] * positions.shape[1]
+    kernel = _contact_rows_parallel if rows >= PARALLEL_MIN_ROWS else _contact_rows_serial
+    corrected, robot_robot, robot_obstacle = kernel(positions, float(body_radius_m), centres, radii)
+    return from_rows(corrected, batch), ContactReport(
+        robot_robot=from_rows(robot_robot, batch), robot_obstacle=from_rows(robot_obstacle, batch)
+    )

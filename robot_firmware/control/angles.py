@@ -1,13 +1,25 @@
-"""Angle wrapping used by every module that compares orientations (DESIGN.md §6, eq. 20)."""
+"""Angle wrapping used by every module that compares orientations (DESIGN.md §6, eq. 20).
+
+`wrap_angle` is the compiled scalar form the control and physics kernels call;
+`wrap_angle_rad` is the same function as a numpy ufunc for arrays.
+"""
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
+import math
+
+from numba import njit, vectorize
+
+TWO_PI = 2.0 * math.pi
 
 
-def wrap_angle_rad(angle_rad: ArrayLike) -> NDArray[np.float64]:
-    """Wrap angles to (-π, π]."""
-    a = np.asarray(angle_rad, dtype=np.float64)
-    wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-    return np.asarray(wrapped, dtype=np.float64)
+@njit(cache=True)
+def wrap_angle(angle_rad: float) -> float:
+    """Wrap an angle to (-π, π] (π - ((π - a) mod 2π), the floored modulo)."""
+    return math.pi - (math.pi - angle_rad) % TWO_PI
+
+
+@vectorize(["float64(float64)"], cache=True)
+def wrap_angle_rad(angle_rad: float) -> float:
+    """Wrap angles to (-π, π], element-wise over any array."""
+    return wrap_angle(angle_rad)

@@ -11,12 +11,21 @@ vector from the source's centre to robot i's centre.  The sums of eqs. 23 and 25
 and the ρ ≤ ρ₀ test is applied per pair.  Near contact 1/ρ³ diverges, so ρ is floored at
 `min_gap_m` and the total force is clipped to `max_force`; inside that floor the force no
 longer equals the gradient.
+
+`pair_force` and `clip_vector` are the compiled scalar forms (numba) the control step's kernel
+calls; `repulsive_force` and `clip_norm` are their array forms.  `repulsive_potential` (eq. 23
+itself) is not part of the control step and stays in numpy, for tests and readers.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from numpy.typing import NDArray
+from numba import njit
+from numpy.typing import ArrayLike, NDArray
+
+from robot_firmware.control.rows import as_rows, from_rows
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -32,10 +41,50 @@ def repulsive_potential(
     return np.asarray(np.sum(np.where(active, term, 0.0), axis=-1), dtype=np.float64)
 
 
+@njit(cache=True)
+def pair_force(
+    gap_m: float, valid: bool, gain: float, influence_m: float, min_gap_m: float
+) -> float:
+    """Eq. 25 for one pair: the magnitude of the repulsion along the source-to-robot direction."""
+    if not (valid and gap_m <= influence_m):
+        return 0.0
+    rho = max(gap_m, min_gap_m)
+    return gain * (1.0 / rho - 1.0 / influence_m) / (rho * rho)
+
+
+@njit(cache=True)
+def clip_vector(x: float, y: float, max_norm: float) -> tuple[float, float]:
+    """Scale a vector down to at most `max_norm`, keeping its direction."""
+    scale = min(1.0, max_norm / max(math.hypot(x, y), 1e-12))
+    return x * scale, y * scale
+
+
+@njit(cache=True)
+def _force_rows(
+    direction: FloatArray, gap: FloatArray, valid: BoolArray, gain: float, influence_m: float,
+    min_gap_m: float,
+) -> FloatArray:  # fmt: skip
+    out = np.zeros((gap.shape[0], 2))
+    for i in range(gap.shape[0]):
+        for j in range(gap.shape[1]):
+            magnitude = pair_force(gap[i, j], valid[i, j], gain, influence_m, min_gap_m)
+            out[i, 0] += magnitude * direction[i, j, 0]
+            out[i, 1] += magnitude * direction[i, j, 1]
+    return out
+
+
+@njit(cache=True)
+def _clip_rows(vector: FloatArray, max_norm: float) -> FloatArray:
+    out = np.empty((vector.shape[0], 2))
+    for i in range(vector.shape[0]):
+        out[i, 0], out[i, 1] = clip_vector(vector[i, 0], vector[i, 1], max_norm)
+    return out
+
+
 def repulsive_force(
-    direction_from_source: FloatArray,
-    gap_m: FloatArray,
-    valid: BoolArray,
+    direction_from_source: ArrayLike,
+    gap_m: ArrayLike,
+    valid: ArrayLike,
     gain: float,
     influence_m: float,
     min_gap_m: float,
@@ -46,14 +95,13 @@ def repulsive_force(
     gap_m: (..., K) body-to-body gaps.  valid: (..., K) which sources exist.
     Returns the force (..., 2) before clipping.
     """
-    rho = np.maximum(gap_m, min_gap_m)
-    magnitude = gain * (1.0 / rho - 1.0 / influence_m) / (rho * rho)
-    magnitude = np.where(valid & (gap_m <= influence_m), magnitude, 0.0)
-    return np.asarray(np.sum(magnitude[..., None] * direction_from_source, axis=-2))
+    batch, rows = as_rows(
+        (direction_from_source, 2, np.float64), (gap_m, 1, np.float64), (valid, 1, np.bool_)
+    )
+    return from_rows(_force_rows(*rows, float(gain), float(influence_m), float(min_gap_m)), batch)
 
 
-def clip_norm(vector: FloatArray, max_norm: float) -> FloatArray:
+def clip_norm(vector: ArrayLike, max_norm: float) -> FloatArray:
     """Scale vectors (..., 2) down to at most `max_norm`, keeping their direction."""
-    norm = np.hypot(vector[..., 0], vector[..., 1])
-    scale = np.minimum(1.0, max_norm / np.maximum(norm, 1e-12))
-    return vector * scale[..., None]
+    batch, (rows,) = as_rows((vector, 1, np.float64))
+    return from_rows(_clip_rows(rows, float(max_norm)), batch)

@@ -19,26 +19,37 @@ with a shorter τ_release.  The integrator is frozen while the field is active.
 
 Sonar echoes that fall on a peer whose position is known from the radio are left to the
 robot-robot term, so a peer is not repelled twice.
+
+The tick is compiled (numba): `control_robot` runs it for one robot from the compiled forms of
+each equation (kinematics, estimation, formation, apf, fuzzy, pid), and `control_step` runs it
+over every robot of a batch, on every core when the batch is large (`prange`).  The same
+kernel steers one robot in the firmware and B x N robots in the batch simulator.
+tests/control/oracle.py states the same tick in numpy; the kernels are tested against it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numba import njit, prange
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 
-from robot_firmware.control.apf import clip_norm, repulsive_force
-from robot_firmware.control.estimation import EstimatorState, fuse_pose_fix, odometry_update
-from robot_firmware.control.formation import follower_reference
-from robot_firmware.control.fuzzy import FuzzyRuleBase, infer
-from robot_firmware.control.pid import (
-    PidState,
-    filtered_error_rate,
-    redundant_pid_law,
-    tracking_error,
+from robot_firmware.control.apf import clip_vector, pair_force
+from robot_firmware.control.estimation import (
+    EstimatorState,
+    fuse_fix,
+    metres_per_count,
+    odometry,
 )
+from robot_firmware.control.formation import slot_reference
+from robot_firmware.control.fuzzy import FuzzyRuleBase, infer_one
+from robot_firmware.control.pid import PidState, axis_error, axis_error_rate, pid_law
+from robot_firmware.control.rows import as_rows, from_rows
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -94,13 +105,79 @@ class ControllerParams(BaseModel):
     sonar_beam_angles_rad: tuple[float, ...] = Field(default_factory=default_sonar_beam_angles_rad)
     sonar_peer_margin_m: float = Field(default=0.15, ge=0.0)
 
-    def gains(self, delta_k: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """K_P, K_I, K_D (..., 3) for a fuzzy output ΔK (..., 3)."""
-        fp, fi, fd = self.fuzzy_gain_fraction
-        kp = np.asarray(self.kp)
-        ki = np.asarray(self.ki)
-        kd = np.asarray(self.kd)
-        return kp * (1.0 + fp * delta_k), ki * (1.0 + fi * delta_k), kd * (1.0 + fd * delta_k)
+    @cached_property
+    def constants(self) -> ControlConstants:
+        """These parameters as the compiled control step takes them (computed once)."""
+        return ControlConstants(
+            dt_s=float(self.control_period_s),
+            wheel_base_m=float(self.wheel_base_m),
+            wheel_radius_m=float(self.wheel_radius_m),
+            body_radius_m=float(self.body_radius_m),
+            metres_per_count=metres_per_count(self.wheel_radius_m, self.encoder_counts_per_rev),
+            no_load_radps=float(self.motor_no_load_speed_radps),
+            max_wheel_radps=float(self.max_wheel_speed_radps),
+            fuzzy_enabled=bool(self.fuzzy_enabled),
+            derivative_tau_s=float(self.derivative_filter_time_constant_s),
+            robot_gain=float(self.apf_robot_gain),
+            obstacle_gain=float(self.apf_obstacle_gain),
+            influence_m=float(self.apf_influence_m),
+            min_gap_m=float(self.apf_min_gap_m),
+            max_repulsion_mps=float(self.apf_max_speed_mps),
+            hold_tau_s=float(self.avoidance_hold_time_constant_s),
+            release_tau_s=float(self.avoidance_release_time_constant_s),
+            fix_gain=float(self.fix_gain),
+            rate_tau_s=float(self.rate_filter_time_constant_s),
+            peer_timeout_s=float(self.peer_timeout_s),
+            sonar_peer_margin_m=float(self.sonar_peer_margin_m),
+            axis=np.array(
+                [
+                    self.kp,
+                    self.ki,
+                    self.kd,
+                    self.fuzzy_gain_fraction,
+                    self.error_scale,
+                    self.error_rate_scale,
+                    self.integral_limit,
+                ],
+                dtype=np.float64,
+            ),
+            beam_angles_rad=np.asarray(self.sonar_beam_angles_rad, dtype=np.float64),
+        )
+
+
+class ControlConstants(NamedTuple):
+    """`ControllerParams` as the kernel reads them: floats, and arrays of the per-axis ones.
+
+    axis rows: K_P₀, K_I₀, K_D₀, η, error scale, error-rate scale, integral limit (7, 3).
+    """
+
+    dt_s: float
+    wheel_base_m: float
+    wheel_radius_m: float
+    body_radius_m: float
+    metres_per_count: float
+    no_load_radps: float
+    max_wheel_radps: float
+    fuzzy_enabled: bool
+    derivative_tau_s: float
+    robot_gain: float
+    obstacle_gain: float
+    influence_m: float
+    min_gap_m: float
+    max_repulsion_mps: float
+    hold_tau_s: float
+    release_tau_s: float
+    fix_gain: float
+    rate_tau_s: float
+    peer_timeout_s: float
+    sonar_peer_margin_m: float
+    axis: FloatArray
+    beam_angles_rad: FloatArray
+
+
+AXIS_KP, AXIS_KI, AXIS_KD, AXIS_ETA, AXIS_ERROR_SCALE, AXIS_RATE_SCALE, AXIS_INTEGRAL_LIMIT = range(
+    7
+)
 
 
 @dataclass(frozen=True)
@@ -177,42 +254,233 @@ class ControlOutputs:
     active: BoolArray
 
 
+@njit(cache=True)
+def beam_point(
+    x_m: float,
+    y_m: float,
+    theta_rad: float,
+    beam_angle_rad: float,
+    gap_m: float,
+    body_radius_m: float,
+) -> tuple[float, float]:
+    """The world point at `gap_m` from the body's rim along one transducer's beam."""
+    beam_world = theta_rad + beam_angle_rad
+    reach = body_radius_m + gap_m
+    return x_m + reach * math.cos(beam_world), y_m + reach * math.sin(beam_world)
+
+
+@njit(cache=True)
+def _beam_rows(
+    pose: FloatArray, gap: FloatArray, beam_angles_rad: FloatArray, body_radius_m: float
+) -> FloatArray:
+    out = np.empty((pose.shape[0], beam_angles_rad.shape[0], 2))
+    for i in range(pose.shape[0]):
+        for j in range(beam_angles_rad.shape[0]):
+            out[i, j, 0], out[i, j, 1] = beam_point(
+                pose[i, 0], pose[i, 1], pose[i, 2], beam_angles_rad[j], gap[i, j], body_radius_m
+            )
+    return out
+
+
 def sonar_beam_points(
-    pose: FloatArray, sonar_range_m: FloatArray, params: ControllerParams
+    pose: ArrayLike, sonar_range_m: ArrayLike, params: ControllerParams
 ) -> FloatArray:
     """World points (..., S, 2) at ``sonar_range_m`` (finite, from the body's rim) along each
     transducer's beam of a robot at ``pose`` (..., 3): where its sonar ring says echoes are."""
-    beam_world = pose[..., 2:3] + np.asarray(params.sonar_beam_angles_rad)
-    reach = params.body_radius_m + sonar_range_m
-    return np.stack(
-        (
-            pose[..., None, 0] + reach * np.cos(beam_world),
-            pose[..., None, 1] + reach * np.sin(beam_world),
-        ),
-        axis=-1,
-    )
+    batch, (p, gap) = as_rows((pose, 1, np.float64), (sonar_range_m, 1, np.float64))
+    k = params.constants
+    return from_rows(_beam_rows(p, gap, k.beam_angles_rad, k.body_radius_m), batch)
 
 
-def sonar_echo_points(
-    pose: FloatArray,
-    sonar_range_m: FloatArray,
-    peer_pose: FloatArray,
-    peer_ok: BoolArray,
-    params: ControllerParams,
-) -> tuple[FloatArray, BoolArray]:
-    """Level 2: a sonar sweep as obstacle points in the world (..., S, 2) and their validity.
+@njit(cache=True)
+def control_robot(
+    i: int,
+    k: ControlConstants,
+    t_s: float,
+    sonar_fresh: bool,
+    state_f: tuple,  # type: ignore[type-arg]
+    state_b: tuple,  # type: ignore[type-arg]
+    inputs_f: tuple,  # type: ignore[type-arg]
+    inputs_b: tuple,  # type: ignore[type-arg]
+    rules: tuple,  # type: ignore[type-arg]
+    out_f: tuple,  # type: ignore[type-arg]
+    out_b: tuple,  # type: ignore[type-arg]
+) -> None:
+    """One tick of robot (row) i: levels 2-4, writing row i of every output array."""
+    pose_in, rate_in, integral_in, previous_error, rate_prev, offset_in, echo_in = state_f
+    previous_counts, localised_in, saturated_in, started_in, echo_valid_in = state_b
+    (
+        fix_pose,
+        sonar_range,
+        peer_pose_in,
+        peer_rate,
+        peer_stamp,
+        reference_pose,
+        reference_rate,
+        slot_distance,
+        slot_angle,
+    ) = inputs_f
+    counts, fix_valid, peer_valid, peer_is_leader, is_leader = inputs_b
+    error_centres, rate_centres, error_count, rate_count, rule_outputs = rules
+    (pose, rate, integral, error, error_rate, offset, echo_points, wheel, duty, desired,
+     desired_rate, delta_k, kp, ki, kd, repulsion) = out_f  # fmt: skip
+    previous_counts_out, localised, saturated, started, echo_valid, active_out = out_b
 
-    Echoes within the APF influence distance count; an echo that lands on a peer whose position
-    is known from the radio is left to the robot-robot term.
-    """
-    echo = np.isfinite(sonar_range_m) & (sonar_range_m <= params.apf_influence_m)
-    points = sonar_beam_points(pose, np.where(echo, sonar_range_m, 0.0), params)
-    to_peer = points[..., :, None, :] - peer_pose[..., None, :, :2]
-    near_peer = np.hypot(to_peer[..., 0], to_peer[..., 1]) < (
-        params.body_radius_m + params.sonar_peer_margin_m
-    )
-    explained = np.any(near_peer & peer_ok[..., None, :], axis=-1)
-    return points, echo & ~explained
+    # Level 2: odometry (eq. 11) and the positioning fix.
+    odometry(
+        pose_in[i], rate_in[i], previous_counts[i], counts[i], k.dt_s, k.metres_per_count,
+        k.wheel_base_m, k.rate_tau_s, pose[i], rate[i],
+    )  # fmt: skip
+    previous_counts_out[i, :] = counts[i]
+    localised[i] = fuse_fix(pose[i], localised_in[i], fix_pose[i], fix_valid[i], k.fix_gain)
+    x = pose[i, 0]
+    y = pose[i, 1]
+    theta = pose[i, 2]
+
+    # Level 3: peers extrapolated to now, the leader, and the desired pose.
+    peers = peer_stamp.shape[1]
+    peer_ok = np.empty(peers, dtype=np.bool_)
+    peer_pose = np.empty((peers, 3))
+    leader = -1
+    for j in range(peers):
+        age_s = t_s - peer_stamp[i, j]
+        peer_ok[j] = peer_valid[i, j] and age_s <= k.peer_timeout_s
+        lead_time_s = max(age_s, 0.0) if peer_ok[j] else 0.0
+        for a in range(3):
+            peer_pose[j, a] = peer_pose_in[i, j, a] + peer_rate[i, j, a] * lead_time_s
+        if leader < 0 and peer_ok[j] and peer_is_leader[i, j]:
+            leader = j
+    leader_pose = np.zeros(3)
+    leader_rate = np.zeros(3)
+    if leader >= 0:
+        leader_pose[:] = peer_pose[leader]
+        leader_rate[:] = peer_rate[i, leader]
+    if is_leader[i]:
+        desired[i, :] = reference_pose[i]
+        desired_rate[i, :] = reference_rate[i]
+    else:
+        slot_reference(
+            leader_pose, leader_rate, pose[i], slot_distance[i], slot_angle[i], desired[i],
+            desired_rate[i],
+        )  # fmt: skip
+
+    # Level 3: APF (eq. 25) from peers (radio) and from sonar echoes not explained by a peer.
+    force_x = 0.0
+    force_y = 0.0
+    for j in range(peers):
+        dx = x - peer_pose[j, 0]
+        dy = y - peer_pose[j, 1]
+        centre_gap = math.hypot(dx, dy)
+        reach = max(centre_gap, 1e-9)
+        magnitude = pair_force(
+            centre_gap - 2.0 * k.body_radius_m, peer_ok[j], k.robot_gain, k.influence_m,
+            k.min_gap_m,
+        )  # fmt: skip
+        force_x += magnitude * (dx / reach)
+        force_y += magnitude * (dy / reach)
+    beams = k.beam_angles_rad.shape[0]
+    if sonar_fresh:
+        near_peer_m = k.body_radius_m + k.sonar_peer_margin_m
+        for s in range(beams):
+            gap = sonar_range[i, s]
+            echo = math.isfinite(gap) and gap <= k.influence_m
+            px, py = beam_point(
+                x, y, theta, k.beam_angles_rad[s], gap if echo else 0.0, k.body_radius_m
+            )
+            echo_points[i, s, 0] = px
+            echo_points[i, s, 1] = py
+            explained = False
+            for j in range(peers):
+                near = math.hypot(px - peer_pose[j, 0], py - peer_pose[j, 1]) < near_peer_m
+                explained = explained or (near and peer_ok[j])
+            echo_valid[i, s] = echo and not explained
+    else:
+        echo_points[i, :, :] = echo_in[i]
+        echo_valid[i, :] = echo_valid_in[i]
+    echo_x = 0.0
+    echo_y = 0.0
+    for s in range(beams):
+        dx = x - echo_points[i, s, 0]
+        dy = y - echo_points[i, s, 1]
+        distance = math.hypot(dx, dy)
+        reach = max(distance, 1e-9)
+        magnitude = pair_force(
+            distance - k.body_radius_m, echo_valid[i, s], k.obstacle_gain, k.influence_m,
+            k.min_gap_m,
+        )  # fmt: skip
+        echo_x += magnitude * (dx / reach)
+        echo_y += magnitude * (dy / reach)
+    rx, ry = clip_vector(force_x + echo_x, force_y + echo_y, k.max_repulsion_mps)
+    repulsion[i, 0] = rx
+    repulsion[i, 1] = ry
+    avoiding = rx != 0.0 or ry != 0.0
+    leak_tau_s = k.hold_tau_s if avoiding else k.release_tau_s
+    for a in range(2):
+        offset_rate = repulsion[i, a] - offset_in[i, a] / leak_tau_s
+        offset[i, a] = offset_in[i, a] + offset_rate * k.dt_s
+        desired[i, a] += offset[i, a]
+        desired_rate[i, a] += offset_rate
+
+    # Level 4: fuzzy-scheduled gains (Table 2, eqs. 6-7) and the redundant PID law (eq. 14).
+    axis_error(pose[i], desired[i], error[i])
+    axis_error_rate(
+        error[i], previous_error[i], rate_prev[i], started_in[i], k.dt_s, k.derivative_tau_s,
+        error_rate[i],
+    )  # fmt: skip
+    g = k.axis
+    for a in range(3):
+        if k.fuzzy_enabled:
+            delta_k[i, a] = infer_one(
+                error_centres[i], rate_centres[i], error_count[i], rate_count[i], rule_outputs[i],
+                error[i, a] / g[AXIS_ERROR_SCALE, a], error_rate[i, a] / g[AXIS_RATE_SCALE, a],
+            )  # fmt: skip
+        else:
+            delta_k[i, a] = 0.0
+        kp[i, a] = g[AXIS_KP, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
+        ki[i, a] = g[AXIS_KI, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
+        kd[i, a] = g[AXIS_KD, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
+    active = localised[i] and (is_leader[i] or leader >= 0)
+    active_out[i] = active
+    saturated[i] = pid_law(
+        integral_in[i], saturated_in[i], error[i], error_rate[i], desired_rate[i], theta,
+        kp[i], ki[i], kd[i], active and not avoiding, k.dt_s, g[AXIS_INTEGRAL_LIMIT],
+        k.wheel_base_m, k.wheel_radius_m, k.max_wheel_radps, integral[i], wheel[i],
+    )  # fmt: skip
+    started[i] = True
+    for w in range(4):
+        if not active:
+            wheel[i, w] = 0.0
+        duty[i, w] = min(max(wheel[i, w] / k.no_load_radps, -1.0), 1.0)
+
+
+def _make_control_rows(parallel: bool):  # type: ignore[no-untyped-def]
+    def control_rows(k, t_s, sonar_fresh, state_f, state_b, inputs_f, inputs_b, rules):  # type: ignore[no-untyped-def]
+        n = state_f[0].shape[0]
+        beams = k.beam_angles_rad.shape[0]
+        out_f = (
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 2)), np.empty((n, beams, 2)), np.empty((n, 4)),
+            np.empty((n, 4)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)),
+        )  # fmt: skip
+        out_b = (
+            np.empty((n, 4), dtype=np.int64), np.empty(n, dtype=np.bool_),
+            np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_),
+            np.empty((n, beams), dtype=np.bool_), np.empty(n, dtype=np.bool_),
+        )  # fmt: skip
+        for i in prange(n):
+            control_robot(
+                i, k, t_s, sonar_fresh, state_f, state_b, inputs_f, inputs_b, rules, out_f, out_b
+            )
+        return out_f, out_b
+
+    return njit(cache=True, parallel=parallel)(control_rows)
+
+
+_control_rows_serial = _make_control_rows(parallel=False)
+_control_rows_parallel = _make_control_rows(parallel=True)
+PARALLEL_MIN_ROBOTS = 64
+"""Batches of at least this many robots run the control step on every core (numba prange)."""
 
 
 def control_step(
@@ -222,113 +490,54 @@ def control_step(
     rule_base: FuzzyRuleBase,
     params: ControllerParams,
 ) -> tuple[ControllerState, ControlOutputs]:
-    """Advance one control period; returns the new state and the wheel commands."""
-    dt = params.control_period_s
-    est = odometry_update(
-        state.estimator,
-        inputs.encoder_counts,
-        dt,
-        params.encoder_counts_per_rev,
-        params.wheel_radius_m,
-        params.wheel_base_m,
-        params.rate_filter_time_constant_s,
-    )
-    est = fuse_pose_fix(est, inputs.fix_pose, inputs.fix_valid, params.fix_gain)
-    pose = est.pose
-    theta = pose[..., 2]
+    """Advance one control period; returns the new state and the wheel commands.
 
-    # Level 3: peers and the desired pose.
-    age_s = inputs.t_s - inputs.peer_stamp_s
-    peer_ok = inputs.peer_valid & (age_s <= params.peer_timeout_s)
-    lead_time_s = np.where(peer_ok, np.maximum(age_s, 0.0), 0.0)
-    peer_pose = inputs.peer_pose + inputs.peer_rate * lead_time_s[..., None]
-    leader_mask = peer_ok & inputs.peer_is_leader
-    leader_known = np.any(leader_mask, axis=-1)
-    first_leader = (leader_mask & (np.cumsum(leader_mask, axis=-1) == 1))[..., None]
-    leader_pose = np.sum(np.where(first_leader, peer_pose, 0.0), axis=-2)
-    leader_rate = np.sum(np.where(first_leader, inputs.peer_rate, 0.0), axis=-2)
-    slot_pose, slot_rate = follower_reference(
-        leader_pose, leader_rate, pose, role.slot_distance_m, role.slot_angle_rad
+    Every array broadcasts against the robots' batch shape (the state's); `rule_base` is one
+    scheduler per robot (its batch axes broadcast the same way) used for all three axes.
+    """
+    est, pid = state.estimator, state.pid
+    f8, i8, b1 = np.float64, np.int64, np.bool_
+    batch, rows = as_rows(
+        (est.pose, 1, f8), (est.rate, 1, f8), (pid.integral, 1, f8),
+        (pid.previous_error, 1, f8), (pid.error_rate, 1, f8), (state.avoidance_offset_m, 1, f8),
+        (state.echo_points_m, 2, f8),
+        (est.previous_counts, 1, i8), (est.localised, 0, b1), (pid.saturated, 0, b1),
+        (pid.started, 0, b1), (state.echo_valid, 1, b1),
+        (inputs.fix_pose, 1, f8), (inputs.sonar_range_m, 1, f8), (inputs.peer_pose, 2, f8),
+        (inputs.peer_rate, 2, f8), (inputs.peer_stamp_s, 1, f8), (inputs.reference_pose, 1, f8),
+        (inputs.reference_rate, 1, f8), (role.slot_distance_m, 0, f8),
+        (role.slot_angle_rad, 0, f8),
+        (inputs.encoder_counts, 1, i8), (inputs.fix_valid, 0, b1), (inputs.peer_valid, 1, b1),
+        (inputs.peer_is_leader, 1, b1), (role.is_leader, 0, b1),
+        (rule_base.error_centres, 1, f8), (rule_base.rate_centres, 1, f8),
+        (rule_base.error_set_count, 0, i8), (rule_base.rate_set_count, 0, i8),
+        (rule_base.rule_outputs, 2, f8),
+    )  # fmt: skip
+    robots = rows[0].shape[0]
+    kernel = _control_rows_parallel if robots >= PARALLEL_MIN_ROBOTS else _control_rows_serial
+    out_f, out_b = kernel(
+        params.constants, float(inputs.t_s), bool(inputs.sonar_fresh),
+        tuple(rows[0:7]), tuple(rows[7:12]), tuple(rows[12:21]), tuple(rows[21:26]),
+        tuple(rows[26:31]),
+    )  # fmt: skip
+    (pose, rate, integral, error, error_rate, offset, echo_points, wheel, duty, desired,
+     desired_rate, delta_k, kp, ki, kd, repulsion) = (
+        from_rows(a, batch) for a in out_f
+    )  # fmt: skip
+    previous_counts, localised, saturated, started, echo_valid, active = (
+        from_rows(a, batch) for a in out_b
     )
-    lead = role.is_leader[..., None]
-    desired_pose = np.where(lead, inputs.reference_pose, slot_pose)
-    desired_rate = np.where(lead, inputs.reference_rate, slot_rate)
-
-    # Level 3: APF from peers (radio) and from sonar echoes not explained by a peer.
-    to_self = pose[..., None, :2] - peer_pose[..., :2]
-    centre_gap = np.hypot(to_self[..., 0], to_self[..., 1])
-    peer_dir = to_self / np.maximum(centre_gap, 1e-9)[..., None]
-    peer_gap = centre_gap - 2.0 * params.body_radius_m
-    force = repulsive_force(
-        peer_dir,
-        peer_gap,
-        peer_ok,
-        params.apf_robot_gain,
-        params.apf_influence_m,
-        params.apf_min_gap_m,
-    )
-    if inputs.sonar_fresh:
-        echo_points, echo_valid = sonar_echo_points(
-            pose, inputs.sonar_range_m, peer_pose, peer_ok, params
-        )
-    else:
-        echo_points, echo_valid = state.echo_points_m, state.echo_valid
-    from_echo = pose[..., None, :2] - echo_points
-    echo_distance = np.hypot(from_echo[..., 0], from_echo[..., 1])
-    force = force + repulsive_force(
-        from_echo / np.maximum(echo_distance, 1e-9)[..., None],
-        echo_distance - params.body_radius_m,
-        echo_valid,
-        params.apf_obstacle_gain,
-        params.apf_influence_m,
-        params.apf_min_gap_m,
-    )
-    repulsion = clip_norm(force, params.apf_max_speed_mps)
-    avoiding = np.any(repulsion != 0.0, axis=-1)
-    leak_time_constant_s = np.where(
-        avoiding, params.avoidance_hold_time_constant_s, params.avoidance_release_time_constant_s
-    )
-    offset_rate = repulsion - state.avoidance_offset_m / leak_time_constant_s[..., None]
-    offset = state.avoidance_offset_m + offset_rate * dt
-    desired_pose = desired_pose.copy()
-    desired_rate = desired_rate.copy()
-    desired_pose[..., :2] += offset
-    desired_rate[..., :2] += offset_rate
-
-    # Level 4: fuzzy-scheduled gains and the redundant PID law.
-    error = tracking_error(pose, desired_pose)
-    error_rate = filtered_error_rate(state.pid, error, dt, params.derivative_filter_time_constant_s)
-    if params.fuzzy_enabled:
-        delta_k = infer(
-            rule_base,
-            error / np.asarray(params.error_scale),
-            error_rate / np.asarray(params.error_rate_scale),
-        )
-    else:
-        delta_k = np.zeros_like(error)
-    kp, ki, kd = params.gains(delta_k)
-    active = est.localised & (role.is_leader | leader_known)
-    pid, wheel = redundant_pid_law(
-        state.pid,
-        error,
-        error_rate,
-        desired_rate,
-        theta,
-        kp,
-        ki,
-        kd,
-        active & ~avoiding,
-        dt,
-        np.asarray(params.integral_limit),
-        params.wheel_base_m,
-        params.wheel_radius_m,
-        params.max_wheel_speed_radps,
-    )
-    wheel = np.where(active[..., None], wheel, 0.0)
-    duty = np.clip(wheel / params.motor_no_load_speed_radps, -1.0, 1.0)
     new_state = ControllerState(
-        estimator=est,
-        pid=pid,
+        estimator=EstimatorState(
+            pose=pose, rate=rate, previous_counts=previous_counts, localised=localised
+        ),
+        pid=PidState(
+            integral=integral,
+            previous_error=error,
+            error_rate=error_rate,
+            saturated=saturated,
+            started=started,
+        ),
         avoidance_offset_m=offset,
         echo_points_m=echo_points,
         echo_valid=echo_valid,
@@ -336,7 +545,7 @@ def control_step(
     outputs = ControlOutputs(
         wheel_speed_radps=wheel,
         duty=duty,
-        desired_pose=desired_pose,
+        desired_pose=desired,
         desired_rate=desired_rate,
         error=error,
         delta_k=delta_k,

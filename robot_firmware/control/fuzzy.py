@@ -7,9 +7,9 @@ w_i⁺ = c_{i+1} - c_i, and the memberships of any input sum to one (the outer s
 inputs beyond the outer centres are clipped to them).  Rule activation is the product of the two
 memberships (eq. 7) and the output is the weighted average of the rule consequents (eq. 6).
 
-With half overlap exactly two sets per input are active, so exactly four rules fire; the fast
-path gathers those four instead of forming the full outer product, and `infer_full_product`
-keeps the literal eq. 6-7 form for tests.
+With half overlap exactly two sets per input are active, so exactly four rules fire; the
+compiled `infer_one` (numba) gathers those four instead of forming the full outer product.
+tests/control/oracle.py keeps the literal eq. 6-7 form over all K rules to test it against.
 
 Table 2 is kept as printed: rows are e, columns are ė, cells are the output ΔK, a singleton on
 [-1, 1] (NB = -1 ... PB = +1).  Everywhere else the table is point symmetric,
@@ -27,10 +27,12 @@ are +inf and never become active).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
+
+from robot_firmware.control.rows import as_rows, from_rows
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -157,24 +159,6 @@ class FuzzyRuleBase:
             rule_outputs=np.stack([r.rule_outputs for r in rule_bases]),
         )
 
-    @cached_property
-    def error_lookup(self) -> _CentreLookup:
-        return _centre_lookup(self.error_centres, self.error_set_count)
-
-    @cached_property
-    def rate_lookup(self) -> _CentreLookup:
-        return _centre_lookup(self.rate_centres, self.rate_set_count)
-
-    @cached_property
-    def flat_rule_outputs(self) -> FloatArray:
-        return np.ascontiguousarray(self.rule_outputs).reshape(-1)
-
-    @cached_property
-    def rule_table_base(self) -> IntArray:
-        batch_shape = self.rule_outputs.shape[:-2]
-        count = int(np.prod(batch_shape, dtype=np.int64))
-        return np.arange(count, dtype=np.int64).reshape(batch_shape) * MAX_SETS**2
-
     def expand_dims(self, axes: tuple[int, ...]) -> FuzzyRuleBase:
         """Insert broadcast axes after the batch axes (e.g. robot and control-axis axes)."""
 
@@ -191,99 +175,75 @@ class FuzzyRuleBase:
         )
 
 
-@dataclass(frozen=True)
-class _CentreLookup:
-    """Centres of a batch of schedulers laid end to end for one `searchsorted`.
+@njit(cache=True)
+def active_pair(x: float, centres: FloatArray, set_count: int) -> tuple[int, float]:
+    """Index k of the left active set of one input and the membership of set k+1.
 
-    Scheduler r's centres are shifted by r·spread so that the concatenation is sorted; padding
-    repeats the last centre.  Inputs are clipped to their own scheduler's [first, last].
+    The input is clipped to [c_0, c_{n-1}) (the outer sets are shoulders); set k then has
+    membership 1 - μ_{k+1}, and every other set 0.
     """
-
-    keys: FloatArray
-    values: FloatArray
-    shift: FloatArray
-    key_base: IntArray
-    last_pair: IntArray
-    first: FloatArray
-    below_last: FloatArray
-
-
-def _centre_lookup(centres: FloatArray, set_count: IntArray) -> _CentreLookup:
-    batch_shape = centres.shape[:-1]
-    count = np.broadcast_to(set_count, batch_shape)
-    last = np.take_along_axis(centres, (count - 1)[..., None], axis=-1)[..., 0]
-    padded = np.where(np.isfinite(centres), centres, last[..., None])
-    spread = float(np.max(padded) - np.min(padded)) + 1.0
-    index = np.arange(int(np.prod(batch_shape, dtype=np.int64))).reshape(batch_shape)
-    shift = index * spread
-    return _CentreLookup(
-        keys=(padded + shift[..., None]).reshape(-1),
-        values=padded.reshape(-1).astype(np.float64),
-        shift=np.asarray(shift, dtype=np.float64),
-        key_base=np.asarray(index * MAX_SETS, dtype=np.int64),
-        last_pair=np.asarray(index * MAX_SETS + count - 2, dtype=np.int64),
-        first=np.asarray(padded[..., 0], dtype=np.float64),
-        below_last=np.nextafter(last, -np.inf),
-    )
+    last = centres[set_count - 1]
+    below_last = np.nextafter(last, -np.inf)
+    xc = min(max(x, centres[0]), below_last)
+    k = 0
+    for j in range(1, set_count - 1):
+        if centres[j] <= xc:
+            k = j
+    ck = centres[k]
+    ck1 = centres[k + 1]
+    return k, min(max((xc - ck) / (ck1 - ck), 0.0), 1.0)
 
 
-def _active_pair(x: FloatArray, lookup: _CentreLookup) -> tuple[IntArray, FloatArray]:
-    """Index k of the left active set and the membership of set k+1 (set k has 1 - that)."""
-    xc = np.minimum(np.maximum(x, lookup.first), lookup.below_last)
-    query = xc + lookup.shift
-    g = np.searchsorted(lookup.keys, query, side="right") - 1
-    # The shift can round a query onto a neighbouring key; keep it inside its own scheduler.
-    g = np.minimum(np.maximum(g, lookup.key_base), lookup.last_pair)
-    # Memberships from the unshifted centres, so a scheduler's output does not depend on where
-    # it sits in the batch.
-    ck = lookup.values[g]
-    ck1 = lookup.values[g + 1]
-    mu_right = np.minimum(np.maximum((xc - ck) / (ck1 - ck), 0.0), 1.0)
-    return np.asarray(g - lookup.key_base, dtype=np.int64), mu_right
-
-
-def infer(rule_base: FuzzyRuleBase, error_norm: FloatArray, rate_norm: FloatArray) -> FloatArray:
-    """ΔK for normalised inputs (eqs. 6-7), gathering only the four rules that fire."""
-    ke, me = _active_pair(error_norm, rule_base.error_lookup)
-    kd, md = _active_pair(rate_norm, rule_base.rate_lookup)
-    flat = rule_base.flat_rule_outputs
-    base = rule_base.rule_table_base + ke * MAX_SETS + kd
+@njit(cache=True)
+def infer_one(
+    error_centres: FloatArray,
+    rate_centres: FloatArray,
+    error_set_count: int,
+    rate_set_count: int,
+    rule_outputs: FloatArray,
+    error_norm: float,
+    rate_norm: float,
+) -> float:
+    """ΔK of one scheduler for one normalised input pair (eqs. 6-7), from the four rules that
+    fire; their activations (eq. 7, products of memberships) sum to one, so eq. 6's denominator
+    is 1."""
+    ke, me = active_pair(error_norm, error_centres, error_set_count)
+    kd, md = active_pair(rate_norm, rate_centres, rate_set_count)
     le = 1.0 - me
     ld = 1.0 - md
-    # The four activations sum to one (half overlap), so eq. 6's denominator is 1.
-    return np.asarray(
-        le * (ld * flat[base] + md * flat[base + 1])
-        + me * (ld * flat[base + MAX_SETS] + md * flat[base + MAX_SETS + 1]),
-        dtype=np.float64,
+    return le * (ld * rule_outputs[ke, kd] + md * rule_outputs[ke, kd + 1]) + me * (
+        ld * rule_outputs[ke + 1, kd] + md * rule_outputs[ke + 1, kd + 1]
     )
 
 
-def memberships(x: ArrayLike, centres: ArrayLike) -> FloatArray:
-    """Membership of x in every set of one input (unpadded centres), shape x.shape + (n,)."""
-    c = np.asarray(centres, dtype=np.float64)
-    xv = np.clip(np.asarray(x, dtype=np.float64), c[0], c[-1])[..., None]
-    left = np.concatenate([[c[0] - 1.0], c[:-1]])
-    right = np.concatenate([c[1:], [c[-1] + 1.0]])
-    rising = (xv - left) / (c - left)
-    falling = (right - xv) / (right - c)
-    mu = np.clip(np.minimum(rising, falling), 0.0, 1.0)
-    mu[..., 0] = np.where(xv[..., 0] <= c[0], 1.0, mu[..., 0])
-    mu[..., -1] = np.where(xv[..., 0] >= c[-1], 1.0, mu[..., -1])
-    return np.asarray(mu, dtype=np.float64)
-
-
-def infer_full_product(
-    error_centres: ArrayLike,
-    rate_centres: ArrayLike,
-    rule_outputs: ArrayLike,
-    error_norm: ArrayLike,
-    rate_norm: ArrayLike,
+@njit(cache=True)
+def _infer_rows(
+    error_centres: FloatArray,
+    rate_centres: FloatArray,
+    error_set_count: IntArray,
+    rate_set_count: IntArray,
+    rule_outputs: FloatArray,
+    error_norm: FloatArray,
+    rate_norm: FloatArray,
 ) -> FloatArray:
-    """Eqs. 6-7 written out over all K rules, for one scheduler (unpadded arrays)."""
-    mu_e = memberships(error_norm, error_centres)
-    mu_d = memberships(rate_norm, rate_centres)
-    activation = mu_e[..., :, None] * mu_d[..., None, :]  # eq. 7, every rule
-    rules = np.asarray(rule_outputs, dtype=np.float64)
-    num = np.sum(activation * rules, axis=(-2, -1))
-    den = np.sum(activation, axis=(-2, -1))
-    return np.asarray(num / den, dtype=np.float64)  # eq. 6
+    out = np.empty(error_norm.shape[0])
+    for i in range(error_norm.shape[0]):
+        out[i] = infer_one(
+            error_centres[i], rate_centres[i], error_set_count[i], rate_set_count[i],
+            rule_outputs[i], error_norm[i], rate_norm[i],
+        )  # fmt: skip
+    return out
+
+
+def infer(rule_base: FuzzyRuleBase, error_norm: ArrayLike, rate_norm: ArrayLike) -> FloatArray:
+    """ΔK for normalised inputs (eqs. 6-7); the rule base's batch axes broadcast with theirs."""
+    batch, rows = as_rows(
+        (rule_base.error_centres, 1, np.float64),
+        (rule_base.rate_centres, 1, np.float64),
+        (rule_base.error_set_count, 0, np.int64),
+        (rule_base.rate_set_count, 0, np.int64),
+        (rule_base.rule_outputs, 2, np.float64),
+        (error_norm, 0, np.float64),
+        (rate_norm, 0, np.float64),
+    )
+    return from_rows(_infer_rows(*rows), batch)

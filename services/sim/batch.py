@@ -200,9 +200,9 @@ def run_batch(
     )
     base = rule_base if rule_base is not None else load_rule_base(scenario)
     if base.error_centres.ndim == 1:
-        rules = base.expand_dims((0, 1, 2))  # (1, 1, 1, 7): batch, robot, axis
+        rules = base  # one scheduler for every robot of every run
     elif base.error_centres.shape[0] == batch_size:
-        rules = base.expand_dims((1, 2))
+        rules = base.expand_dims((1,))  # (B, 1, 7): one per run, for each of its robots
     else:
         raise ValueError("a batched rule base needs a leading axis of length batch_size")
     rule_count = np.broadcast_to(np.asarray(base.rule_count), b) * n

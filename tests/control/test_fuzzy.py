@@ -9,11 +9,10 @@ from robot_firmware.control.fuzzy import (
     TABLE2_RULES,
     FuzzyRuleBase,
     infer,
-    infer_full_product,
-    memberships,
     table2_label_indices,
     table2_rule_outputs,
 )
+from tests.control.oracle import infer_full_product, memberships
 
 # Table 2 of the paper, copied cell by cell from the printed table: rows e, columns ė.
 PRINTED_TABLE2 = """

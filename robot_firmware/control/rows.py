@@ -1,0 +1,36 @@
+"""Array arguments laid out as the compiled kernels take them: one contiguous row per robot.
+
+The kernels of this package loop over rows (R, ...) of float64, int64 or bool.  The array
+forms of the equations accept any leading batch shape that broadcasts, as numpy functions do;
+`as_rows` broadcasts the arguments' batch parts against each other and returns the batch shape
+and each argument as (R, *core) rows, and `from_rows` gives an output its batch shape back.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, DTypeLike, NDArray
+
+
+def as_rows(
+    *arguments: tuple[ArrayLike, int, DTypeLike],
+) -> tuple[tuple[int, ...], list[NDArray[np.generic]]]:
+    """(array, core dimensions, dtype) per argument -> batch shape and (R, *core) rows."""
+    arrays = [np.asarray(a, dtype=dtype) for a, _, dtype in arguments]
+    cores = [
+        a.shape[a.ndim - core :] if core else ()
+        for a, (_, core, _) in zip(arrays, arguments, strict=True)
+    ]
+    batch = np.broadcast_shapes(
+        *(a.shape[: a.ndim - len(core)] for a, core in zip(arrays, cores, strict=True))
+    )
+    rows = [
+        (a if a.shape == batch + core else np.broadcast_to(a, batch + core)).reshape((-1,) + core)
+        for a, core in zip(arrays, cores, strict=True)
+    ]
+    return batch, rows
+
+
+def from_rows(rows: NDArray[np.generic], batch: tuple[int, ...]) -> NDArray[np.generic]:
+    """Rows (R, *core) back to batch + core."""
+    return rows.reshape(batch + rows.shape[1:])
