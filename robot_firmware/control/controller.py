@@ -49,7 +49,7 @@ from robot_firmware.control.estimation import (
 from robot_firmware.control.formation import slot_reference
 from robot_firmware.control.fuzzy import FuzzyRuleBase, infer_one
 from robot_firmware.control.pid import PidState, axis_error, axis_error_rate, pid_law
-from robot_firmware.control.rows import as_rows, from_rows
+from robot_firmware.control.rows import as_rows, from_rows, rows_of
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -305,8 +305,15 @@ def control_robot(
     rules: tuple,  # type: ignore[type-arg]
     out_f: tuple,  # type: ignore[type-arg]
     out_b: tuple,  # type: ignore[type-arg]
+    scratch_ok: BoolArray,
+    scratch_pose: FloatArray,
+    origin: FloatArray,
 ) -> None:
-    """One tick of robot (row) i: levels 2-4, writing row i of every output array."""
+    """One tick of robot (row) i: levels 2-4, writing row i of every output array.
+
+    scratch_ok (R, P) and scratch_pose (R, P, 3) hold the peers seen this tick; origin is a
+    zero pose, the leader's while none is heard.
+    """
     pose_in, rate_in, integral_in, previous_error, rate_prev, offset_in, echo_in = state_f
     previous_counts, localised_in, saturated_in, started_in, echo_valid_in = state_b
     (
@@ -339,8 +346,8 @@ def control_robot(
 
     # Level 3: peers extrapolated to now, the leader, and the desired pose.
     peers = peer_stamp.shape[1]
-    peer_ok = np.empty(peers, dtype=np.bool_)
-    peer_pose = np.empty((peers, 3))
+    peer_ok = scratch_ok[i]
+    peer_pose = scratch_pose[i]
     leader = -1
     for j in range(peers):
         age_s = t_s - peer_stamp[i, j]
@@ -350,24 +357,25 @@ def control_robot(
             peer_pose[j, a] = peer_pose_in[i, j, a] + peer_rate[i, j, a] * lead_time_s
         if leader < 0 and peer_ok[j] and peer_is_leader[i, j]:
             leader = j
-    leader_pose = np.zeros(3)
-    leader_rate = np.zeros(3)
-    if leader >= 0:
-        leader_pose[:] = peer_pose[leader]
-        leader_rate[:] = peer_rate[i, leader]
     if is_leader[i]:
         desired[i, :] = reference_pose[i]
         desired_rate[i, :] = reference_rate[i]
     else:
+        # No leader heard: the slot of a leader at the origin (the robot stays inactive).
+        leader_pose = peer_pose[leader] if leader >= 0 else origin
+        leader_rate = peer_rate[i, leader] if leader >= 0 else origin
         slot_reference(
             leader_pose, leader_rate, pose[i], slot_distance[i], slot_angle[i], desired[i],
             desired_rate[i],
         )  # fmt: skip
 
     # Level 3: APF (eq. 25) from peers (radio) and from sonar echoes not explained by a peer.
+    # Sources that do not repel (pair_force 0) are skipped: they would add exactly nothing.
     force_x = 0.0
     force_y = 0.0
     for j in range(peers):
+        if not peer_ok[j]:
+            continue
         dx = x - peer_pose[j, 0]
         dy = y - peer_pose[j, 1]
         centre_gap = math.hypot(dx, dy)
@@ -391,8 +399,8 @@ def control_robot(
             echo_points[i, s, 1] = py
             explained = False
             for j in range(peers):
-                near = math.hypot(px - peer_pose[j, 0], py - peer_pose[j, 1]) < near_peer_m
-                explained = explained or (near and peer_ok[j])
+                if echo and peer_ok[j] and not explained:
+                    explained = math.hypot(px - peer_pose[j, 0], py - peer_pose[j, 1]) < near_peer_m
             echo_valid[i, s] = echo and not explained
     else:
         echo_points[i, :, :] = echo_in[i]
@@ -400,6 +408,8 @@ def control_robot(
     echo_x = 0.0
     echo_y = 0.0
     for s in range(beams):
+        if not echo_valid[i, s]:
+            continue
         dx = x - echo_points[i, s, 0]
         dy = y - echo_points[i, s, 1]
         distance = math.hypot(dx, dy)
@@ -468,10 +478,15 @@ def _make_control_rows(parallel: bool):  # type: ignore[no-untyped-def]
             np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_),
             np.empty((n, beams), dtype=np.bool_), np.empty(n, dtype=np.bool_),
         )  # fmt: skip
+        peers = inputs_f[4].shape[1]
+        scratch_ok = np.empty((n, peers), dtype=np.bool_)
+        scratch_pose = np.empty((n, peers, 3))
+        origin = np.zeros(3)
         for i in prange(n):
             control_robot(
-                i, k, t_s, sonar_fresh, state_f, state_b, inputs_f, inputs_b, rules, out_f, out_b
-            )
+                i, k, t_s, sonar_fresh, state_f, state_b, inputs_f, inputs_b, rules, out_f,
+                out_b, scratch_ok, scratch_pose, origin,
+            )  # fmt: skip
         return out_f, out_b
 
     return njit(cache=True, parallel=parallel)(control_rows)
@@ -497,7 +512,9 @@ def control_step(
     """
     est, pid = state.estimator, state.pid
     f8, i8, b1 = np.float64, np.int64, np.bool_
-    batch, rows = as_rows(
+    batch = est.pose.shape[:-1]
+    rows = rows_of(
+        batch,
         (est.pose, 1, f8), (est.rate, 1, f8), (pid.integral, 1, f8),
         (pid.previous_error, 1, f8), (pid.error_rate, 1, f8), (state.avoidance_offset_m, 1, f8),
         (state.echo_points_m, 2, f8),

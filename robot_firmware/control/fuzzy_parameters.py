@@ -1,14 +1,15 @@
 """The fuzzy scheduler's parameter file: what `swarm tune` writes and robots load (eqs. 6-7).
 
-A file holds, per input, the membership centres (normalised, strictly increasing, 2 to 7 of
-them: the count sets the number of fuzzy sets and hence the rule count K) and optionally a rule
-table; without one, Table 2 restricted to those set counts is used.
+A file holds, per input, the membership centres (normalised, finite, strictly increasing, 2 to
+7 of them: the count sets the number of fuzzy sets and hence the rule count K) and optionally a
+rule table; without one, Table 2 restricted to those set counts is used.  Reading a file is
+`swarm_config.scenario.load_fuzzy_parameters`.
 """
 
 from __future__ import annotations
 
+import math
 from itertools import pairwise
-from pathlib import Path
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -27,6 +28,8 @@ class FuzzyParameters(BaseModel):
     @field_validator("error_centres", "rate_centres")
     @classmethod
     def _increasing(cls, centres: list[float]) -> list[float]:
+        if not all(math.isfinite(c) for c in centres):
+            raise ValueError("centres must be finite numbers")
         if any(b <= a for a, b in pairwise(centres)):
             raise ValueError("centres must be strictly increasing")
         return centres
@@ -48,13 +51,6 @@ class FuzzyParameters(BaseModel):
     def table2_defaults() -> FuzzyParameters:
         even = [round(-1.0 + 2.0 * i / (MAX_SETS - 1), 12) for i in range(MAX_SETS)]
         return FuzzyParameters(error_centres=even, rate_centres=list(even))
-
-    @staticmethod
-    def load(path: Path) -> FuzzyParameters:
-        """Read a YAML or JSON parameter file (validation errors propagate as pydantic's)."""
-        with path.open(encoding="utf-8") as handle:
-            data = yaml.safe_load(handle)
-        return FuzzyParameters.model_validate(data)
 
     def dump_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(exclude_none=True), sort_keys=False)

@@ -86,6 +86,21 @@ def axis_error_rate(
 
 
 @njit(cache=True)
+def _command(
+    k: int,
+    desired_rate: FloatArray,
+    kp: FloatArray,
+    ki: FloatArray,
+    kd: FloatArray,
+    error: FloatArray,
+    integral: FloatArray,
+    error_rate: FloatArray,
+) -> float:
+    """Eq. 14 on axis k: u = Ẏ_d - K_P·e - K_I·∫e dt - K_D·ė."""
+    return desired_rate[k] - kp[k] * error[k] - ki[k] * integral[k] - kd[k] * error_rate[k]
+
+
+@njit(cache=True)
 def pid_law(
     previous_integral: FloatArray,
     was_saturated: bool,
@@ -107,13 +122,16 @@ def pid_law(
 ) -> bool:
     """One tick of eq. 14 for one robot; returns whether the wheels saturated."""
     hold = was_saturated or not integrate
-    command = np.empty(3)
     for k in range(3):
         integral = previous_integral[k] if hold else previous_integral[k] + error[k] * dt_s
-        integral = min(max(integral, -integral_limit[k]), integral_limit[k])
-        integral_out[k] = integral
-        command[k] = desired_rate[k] - kp[k] * error[k] - ki[k] * integral - kd[k] * error_rate[k]
-    rims = rim_speeds(command[0], command[1], command[2], theta_rad, wheel_base_m)
+        integral_out[k] = min(max(integral, -integral_limit[k]), integral_limit[k])
+    rims = rim_speeds(
+        _command(0, desired_rate, kp, ki, kd, error, integral_out, error_rate),
+        _command(1, desired_rate, kp, ki, kd, error, integral_out, error_rate),
+        _command(2, desired_rate, kp, ki, kd, error, integral_out, error_rate),
+        theta_rad,
+        wheel_base_m,
+    )
     peak = 0.0
     for k in range(4):
         wheel_out[k] = rims[k] / wheel_radius_m

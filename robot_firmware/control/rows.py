@@ -31,6 +31,20 @@ def as_rows(
     return batch, rows
 
 
+def rows_of(
+    batch: tuple[int, ...], *arguments: tuple[ArrayLike, int, DTypeLike]
+) -> list[NDArray[np.generic]]:
+    """As `as_rows` for a known batch shape: arrays that already have it are only reshaped."""
+    rows = []
+    for a, core, dtype in arguments:
+        array = a if isinstance(a, np.ndarray) and a.dtype == dtype else np.asarray(a, dtype)
+        shape = array.shape[array.ndim - core :] if core else ()
+        if array.shape[: array.ndim - core] != batch:
+            array = np.broadcast_to(array, batch + shape)
+        rows.append(array.reshape((-1,) + shape))
+    return rows
+
+
 def from_rows(rows: NDArray[np.generic], batch: tuple[int, ...]) -> NDArray[np.generic]:
     """Rows (R, *core) back to batch + core."""
     return rows.reshape(batch + rows.shape[1:])
