@@ -41,7 +41,7 @@ from services.sim.run import fixed_gain_rule_base
 from services.tuner.fitness import make_objective
 from services.tuner.fuzzy_encoding import DIMENSION, to_parameters
 from services.tuner.registry import ALGORITHMS
-from swarm_config.scenario import Scenario, load_scenario
+from swarm_config.scenario import Scenario, load_fuzzy_parameters, load_scenario
 from world.metrics import FormationLayout, fitness_snr
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,7 +57,7 @@ class Controller:
 def tuned_parameters(args: argparse.Namespace) -> tuple[FuzzyParameters, str]:
     """The tuned scheduler and where it came from."""
     if args.tuned is not None:
-        return FuzzyParameters.load(args.tuned), str(args.tuned)
+        return load_fuzzy_parameters(args.tuned), str(args.tuned)
     scenario = load_scenario(args.tune_scenario)
     objective = make_objective(scenario, duration_s=args.duration)
     start = time.perf_counter()

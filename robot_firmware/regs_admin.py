@@ -24,6 +24,7 @@ from robot_firmware.net.messages import (
     RegsDumpReply,
     RegsReply,
     RegsRequest,
+    refusal_of,
 )
 from swarm_config.settings import describe_validation_error
 
@@ -32,7 +33,9 @@ def handle_regs_request(bus: Bus, payload: bytes) -> RegsReply:
     try:
         request = RegsRequest.model_validate_json(payload) if payload else RegsRequest()
     except ValidationError as exc:
-        return AdminError(error=describe_validation_error("invalid regs request", exc))
+        return AdminError(
+            error=describe_validation_error("invalid regs request", exc), reason=refusal_of(exc)
+        )
     if request.op == "dump":
         return RegsDumpReply(
             registers=tuple(

@@ -57,7 +57,7 @@ from robot_firmware.net.wire import (
 from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
 from robot_firmware.tick_scheduler import TickScheduler, Wait
-from swarm_config.scenario import load_rule_base, load_scenario
+from swarm_config.scenario import load_fuzzy_parameters, load_scenario
 from swarm_config.settings import LayeredSettings, describe_validation_error
 
 log = logging.getLogger("swarm.robot")
@@ -105,11 +105,13 @@ class RobotProcess:
     def __init__(self, config: RobotConfig) -> None:
         self.config = config
         scenario = load_scenario(config.scenario)
-        self.mission = RobotMission.from_scenario(scenario, config.name, load_rule_base(scenario))
-        self.fuzzy_parameters: FuzzyParameters | None = (
-            FuzzyParameters.load(scenario.fuzzy_parameter_file)
+        self.fuzzy_parameters = (
+            load_fuzzy_parameters(scenario.fuzzy_parameter_file)
             if scenario.fuzzy_parameter_file is not None
             else FuzzyParameters.table2_defaults()
+        )
+        self.mission = RobotMission.from_scenario(
+            scenario, config.name, self.fuzzy_parameters.rule_base()
         )
         self.keys = SwarmKeys(config.swarm)
         sonar_count = self.mission.sonar_count
@@ -292,8 +294,7 @@ class RobotProcess:
         scheduler takes effect at the next tick.
         """
         if not payload:
-            current = self.fuzzy_parameters
-            return ParamsReply(parameters=None if current is None else current.model_dump())
+            return ParamsReply(parameters=self.fuzzy_parameters.model_dump())
         try:
             data = yaml.safe_load(payload.decode("utf-8"))
         except (ValueError, yaml.YAMLError, RecursionError) as exc:

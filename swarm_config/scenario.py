@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 from pydantic import (
     BaseModel,
@@ -42,7 +41,7 @@ from swarm_config.body import BodyParams
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.sensors import PositioningParams, SonarParams
-from swarm_config.settings import describe_validation_error
+from swarm_config.settings import SettingsError, describe_validation_error, read_yaml
 
 FloatArray = NDArray[np.float64]
 
@@ -273,13 +272,9 @@ def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
 def load_scenario(path: Path) -> Scenario:
     """Read and validate a scenario file; relative fuzzy parameter paths resolve next to it."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read scenario file ({exc.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ScenarioError(f"{path}: not valid YAML: {exc}") from None
+        data = read_yaml(path, "scenario file")
+    except SettingsError as exc:
+        raise ScenarioError(str(exc)) from None
     scenario = parse_scenario(data, str(path))
     fuzzy_file = scenario.fuzzy_parameter_file
     if fuzzy_file is not None and not fuzzy_file.is_absolute():
@@ -288,18 +283,21 @@ def load_scenario(path: Path) -> Scenario:
     return scenario
 
 
-def load_rule_base(scenario: Scenario) -> FuzzyRuleBase:
-    """The scenario's fuzzy scheduler: its parameter file, or Table 2 with even centres."""
-    if scenario.fuzzy_parameter_file is None:
-        return FuzzyParameters.table2_defaults().rule_base()
-    path = scenario.fuzzy_parameter_file
+def load_fuzzy_parameters(path: Path) -> FuzzyParameters:
+    """Read and validate a fuzzy parameter file (YAML or JSON); problems raise ScenarioError."""
     try:
-        return FuzzyParameters.load(path).rule_base()
-    except OSError as exc:
-        raise ScenarioError(f"fuzzy_parameter_file: cannot read {path} ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ScenarioError(f"fuzzy_parameter_file: {path} is not valid YAML: {exc}") from None
+        data = read_yaml(path, "fuzzy parameter file")
+        return FuzzyParameters.model_validate(data)
+    except SettingsError as exc:
+        raise ScenarioError(f"fuzzy_parameter_file: {exc}") from None
     except ValidationError as exc:
         raise ScenarioError(
             describe_validation_error(f"{path}: invalid fuzzy parameters", exc)
         ) from None
+
+
+def load_rule_base(scenario: Scenario) -> FuzzyRuleBase:
+    """The scenario's fuzzy scheduler: its parameter file, or Table 2 with even centres."""
+    if scenario.fuzzy_parameter_file is None:
+        return FuzzyParameters.table2_defaults().rule_base()
+    return load_fuzzy_parameters(scenario.fuzzy_parameter_file).rule_base()

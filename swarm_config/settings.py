@@ -36,14 +36,26 @@ class SettingsError(ValueError):
     """Settings that cannot be used; the message names the field (and its variable)."""
 
 
+def read_yaml(path: Path, what: str) -> object:
+    """The data of a YAML (or JSON) file; SettingsError naming the file and the problem for
+    anything else: unreadable, not UTF-8, not YAML, nested too deep, an impossible date."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SettingsError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise SettingsError(f"{path}: {what} is not UTF-8 text") from None
+    try:
+        return yaml.safe_load(text)
+    except RecursionError:
+        raise SettingsError(f"{path}: {what} is nested too deeply") from None
+    except (yaml.YAMLError, ValueError) as exc:  # ValueError: e.g. a date like 2001-02-30
+        raise SettingsError(f"{path}: {what} is not valid YAML: {exc}") from None
+
+
 def read_yaml_mapping(path: Path, what: str) -> dict[str, Any]:
     """A YAML file that must hold a mapping (empty file: {}); SettingsError otherwise."""
-    try:
-        loaded = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise SettingsError(f"{path}: cannot read ({exc.strerror})") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise SettingsError(f"{path}: not valid YAML: {exc}") from None
+    loaded = read_yaml(path, what)
     if loaded is None:
         return {}
     if not isinstance(loaded, dict):

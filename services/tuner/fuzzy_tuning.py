@@ -172,7 +172,7 @@ def read_convergence_csv(path: Path) -> list[dict[str, str]]:
 
 
 def best_fuzzy_text(parameters: FuzzyParameters, header_lines: Sequence[str]) -> str:
-    """A fuzzy parameter file with a comment header; :meth:`FuzzyParameters.load` reads it."""
+    """A fuzzy parameter file with a comment header; `load_fuzzy_parameters` reads it."""
     header = "".join(f"# {line}\n" for line in header_lines)
     return header + parameters.dump_yaml()
 

@@ -154,11 +154,6 @@ def _centre_problem(parameters: FuzzyParameters | None) -> str | None:
     return None if all(math.isfinite(c) for c in centres) else "non-finite centres"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="FuzzyParameters accepts NaN and infinite membership centres "
-    "(robot_firmware/control/fuzzy_parameters.py checks only their order)",
-)
 def test_params_requests(robot: Robot) -> None:
     process = robot.process
 

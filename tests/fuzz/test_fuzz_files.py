@@ -35,11 +35,6 @@ from world.runtime import WorldConfig
 
 MAPPINGS = 10_000
 TEXTS = 1_000
-YAML_LOADER_LEAKS = (
-    "PyYAML raises ValueError for a date that does not exist (2001-02-30) and RecursionError for "
-    "deep nesting, and a file that is not UTF-8 raises UnicodeDecodeError from read_text: "
-    "swarm_config/scenario.py and settings.py catch yaml.YAMLError and OSError only"
-)
 
 
 _PROBLEM_LINE = re.compile(r"^  (?P<where>[^:]+?)(?: \(or \$\w+\))?: (?P<message>.*)$")
@@ -132,7 +127,6 @@ def test_scenario_mappings() -> None:
     fuzz_loader("file scenario (mapping)", _mappings(10, valid), parse_scenario, ScenarioError)
 
 
-@pytest.mark.xfail(strict=True, reason=YAML_LOADER_LEAKS)
 def test_scenario_files(tmp_path: Path) -> None:
     texts = _texts(11, PAPER.read_text())
     fuzz_loader("file scenario (text)", _written(tmp_path, texts), load_scenario, ScenarioError)
@@ -154,10 +148,6 @@ def test_fuzzy_parameter_mappings() -> None:
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=YAML_LOADER_LEAKS,
-)
 def test_fuzzy_parameter_files(tmp_path: Path) -> None:
     scenario = load_scenario(PAPER)
     path = tmp_path / "input.yaml"
@@ -194,7 +184,6 @@ def test_settings_mappings() -> None:
     )
 
 
-@pytest.mark.xfail(strict=True, reason=YAML_LOADER_LEAKS)
 def test_settings_files(tmp_path: Path) -> None:
     texts = _texts(15, yaml.safe_dump(_WORLD_SETTINGS, sort_keys=False))
     fuzz_loader(

@@ -9,12 +9,17 @@ from typing import Any
 import numpy as np
 import pytest
 
-from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from services.tuner import fuzzy_tuning
 from services.tuner.cli import add_tune_parser, parse_algorithms, run_tune
 from services.tuner.evaluation import FloatArray, Objective
 from services.tuner.fuzzy_tuning import read_convergence_csv
-from swarm_config.scenario import Scenario, ScenarioError, load_rule_base, load_scenario
+from swarm_config.scenario import (
+    Scenario,
+    ScenarioError,
+    load_fuzzy_parameters,
+    load_rule_base,
+    load_scenario,
+)
 
 ROOT = Path(__file__).resolve().parents[3]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -39,7 +44,7 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_best_fuzzy_file_is_loadable_by_robots_and_scenarios(tiny_run: Path) -> None:
     best = tiny_run / "best_fuzzy.yaml"
-    parameters = FuzzyParameters.load(best)
+    parameters = load_fuzzy_parameters(best)
     assert 2 <= len(parameters.error_centres) <= 7
     scenario_file = tiny_run / "tuned.yaml"
     scenario_file.write_text(
