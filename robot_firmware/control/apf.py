@@ -20,6 +20,7 @@ itself) is not part of the control step and stays in numpy, for tests and reader
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -98,7 +99,8 @@ def repulsive_force(
     batch, rows = as_rows(
         (direction_from_source, 2, np.float64), (gap_m, 1, np.float64), (valid, 1, np.bool_)
     )
-    return from_rows(_force_rows(*rows, float(gain), float(influence_m), float(min_gap_m)), batch)
+    arguments: list[Any] = [*rows, float(gain), float(influence_m), float(min_gap_m)]
+    return from_rows(_force_rows(*arguments), batch)
 
 
 def clip_norm(vector: ArrayLike, max_norm: float) -> FloatArray:

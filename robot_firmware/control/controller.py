@@ -298,13 +298,13 @@ def control_robot(
     k: ControlConstants,
     t_s: float,
     sonar_fresh: bool,
-    state_f: tuple,  # type: ignore[type-arg]
-    state_b: tuple,  # type: ignore[type-arg]
-    inputs_f: tuple,  # type: ignore[type-arg]
-    inputs_b: tuple,  # type: ignore[type-arg]
-    rules: tuple,  # type: ignore[type-arg]
-    out_f: tuple,  # type: ignore[type-arg]
-    out_b: tuple,  # type: ignore[type-arg]
+    state_f: tuple,
+    state_b: tuple,
+    inputs_f: tuple,
+    inputs_b: tuple,
+    rules: tuple,
+    out_f: tuple,
+    out_b: tuple,
     scratch_ok: BoolArray,
     scratch_pose: FloatArray,
     origin: FloatArray,

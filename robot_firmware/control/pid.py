@@ -22,6 +22,7 @@ step's kernel calls; the functions below them are their array forms for any batc
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -215,7 +216,8 @@ def filtered_error_rate(
         (state.error_rate, 1, np.float64),
         (state.started, 0, np.bool_),
     )
-    return from_rows(_error_rate_rows(*rows, float(dt_s), float(filter_time_constant_s)), batch)
+    arguments: list[Any] = [*rows, float(dt_s), float(filter_time_constant_s)]
+    return from_rows(_error_rate_rows(*arguments), batch)
 
 
 def redundant_pid_law(
@@ -248,10 +250,11 @@ def redundant_pid_law(
         (integrate, 0, np.bool_),
         (integral_limit, 1, np.float64),
     )
-    integral, wheel, saturated = _pid_rows(
+    arguments: list[Any] = [
         *rows, float(dt_s), float(wheel_base_m), float(wheel_radius_m),
         float(max_wheel_speed_radps),
-    )  # fmt: skip
+    ]  # fmt: skip
+    integral, wheel, saturated = _pid_rows(*arguments)
     new_state = PidState(
         integral=from_rows(integral, batch),
         previous_error=from_rows(rows[2].copy(), batch),

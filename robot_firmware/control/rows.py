@@ -8,13 +8,15 @@ and each argument as (R, *core) rows, and `from_rows` gives an output its batch 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 
 def as_rows(
     *arguments: tuple[ArrayLike, int, DTypeLike],
-) -> tuple[tuple[int, ...], list[NDArray[np.generic]]]:
+) -> tuple[tuple[int, ...], list[NDArray[Any]]]:
     """(array, core dimensions, dtype) per argument -> batch shape and (R, *core) rows."""
     arrays = [np.asarray(a, dtype=dtype) for a, _, dtype in arguments]
     cores = [
@@ -33,7 +35,7 @@ def as_rows(
 
 def rows_of(
     batch: tuple[int, ...], *arguments: tuple[ArrayLike, int, DTypeLike]
-) -> list[NDArray[np.generic]]:
+) -> list[NDArray[Any]]:
     """As `as_rows` for a known batch shape: arrays that already have it are only reshaped."""
     rows = []
     for a, core, dtype in arguments:
@@ -45,6 +47,6 @@ def rows_of(
     return rows
 
 
-def from_rows(rows: NDArray[np.generic], batch: tuple[int, ...]) -> NDArray[np.generic]:
+def from_rows(rows: NDArray[Any], batch: tuple[int, ...]) -> NDArray[Any]:
     """Rows (R, *core) back to batch + core."""
     return rows.reshape(batch + rows.shape[1:])
