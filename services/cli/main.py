@@ -588,10 +588,12 @@ def build_parser() -> argparse.ArgumentParser:
     router.set_defaults(handler=_cmd_router)
 
     from services.dashboard.cli import add_dashboard_parsers
+    from services.scenario.cli import add_scenario_parser
     from services.tuner.cli import add_tune_parser
 
     add_dashboard_parsers(sub)
     add_tune_parser(sub)
+    add_scenario_parser(sub)
     return parser
 
 

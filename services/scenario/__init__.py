@@ -1,0 +1,1 @@
+"""`swarm scenario`: scenario files written for the user (swarm_config/generate.py)."""

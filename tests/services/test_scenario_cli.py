@@ -1,0 +1,72 @@
+"""`swarm scenario generate`: writes an ordinary scenario file; mistakes are one line, exit 2."""
+
+from pathlib import Path
+
+import pytest
+
+from services.cli.main import main
+from swarm_config.scenario import load_scenario
+
+
+def test_generate_writes_a_scenario_the_swarm_can_load(tmp_path: Path) -> None:
+    out = tmp_path / "wedge.yaml"
+    code = main(
+        ["scenario", "generate", "--robots", "12", "--formation", "wedge", "--out", str(out)]
+    )
+    assert code == 0
+    scenario = load_scenario(out)
+    assert scenario.robot_names == tuple(f"robot{i}" for i in range(1, 13))
+    assert scenario.name == "wedge-12"
+
+
+def test_equal_arguments_write_identical_files(tmp_path: Path) -> None:
+    args = ["scenario", "generate", "--robots", "9", "--formation", "grid", "--trajectory",
+            "lemniscate", "--obstacles", "2", "--seed", "4"]  # fmt: skip
+    assert main([*args, "--out", str(tmp_path / "a.yaml")]) == 0
+    assert main([*args, "--out", str(tmp_path / "b.yaml")]) == 0
+    assert (tmp_path / "a.yaml").read_bytes() == (tmp_path / "b.yaml").read_bytes()
+
+
+def test_the_file_names_the_command_that_recreates_it(tmp_path: Path) -> None:
+    first = tmp_path / "first.yaml"
+    assert main(["scenario", "generate", "--robots", "5", "--out", str(first)]) == 0
+    command = first.read_text().splitlines()[1].lstrip("# ").split()
+    assert command[:3] == ["swarm", "scenario", "generate"]
+    again = tmp_path / "again.yaml"
+    assert main([*command[1:], "--out", str(again)]) == 0
+    assert again.read_bytes() == first.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--robots", "0"],
+        ["--robots", "three"],
+        ["--robots", "3", "--formation", "star"],
+        ["--robots", "3", "--spacing-m", "0.5"],
+        ["--robots", "3", "--obstacles", "40"],
+        ["--formation", "line"],
+    ],
+)
+def test_a_bad_argument_is_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    out = tmp_path / "never.yaml"
+    try:
+        code = main(["scenario", "generate", *args, "--out", str(out)])
+    except SystemExit as exc:  # argparse's own refusals
+        code = exc.code  # type: ignore[assignment]
+    assert code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_an_unwritable_destination_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "missing" / "x.yaml"
+    assert main(["scenario", "generate", "--robots", "3", "--out", str(out)]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    assert main(["scenario", "generate", "--robots", "3", "--out", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
