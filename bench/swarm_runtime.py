@@ -32,6 +32,14 @@ from robot_firmware.net.admin import admin_request
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import LauncherStatusReply, WorldStatusReply
 from robot_firmware.net.session import open_client
+from services.router.access import router_config_document
+from swarm_config.credentials import (
+    CREDENTIALS_FILE_ENV,
+    generate_credential_set,
+    read_credentials,
+    write_credential_set,
+    write_private_file,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -61,6 +69,12 @@ def _start(out: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+    # The bench asks the swarm as its operator, with the credentials `swarm up` makes.
+    operator = out / "credentials" / "operator.json"
+    deadline = time.monotonic() + 60.0
+    while not operator.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    os.environ[CREDENTIALS_FILE_ENV] = str(operator)
     return process
 
 
@@ -130,8 +144,26 @@ def one_hop_latency_ms(samples: int) -> tuple[list[float], list[float]]:
     port = _port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = SwarmKeys("lab")
+    # Logins as in a run, but no access control: the bench itself plays robot1 and robot2
+    # and pings on keys of its own.
+    credentials_dir = Path(tempfile.mkdtemp()) / "credentials"
+    credentials = generate_credential_set("lab", ("robot1", "robot2", "robot3"))
+    files = write_credential_set(credentials_dir, credentials)
+    document = router_config_document(credentials, credentials_dir / "router-users.txt", [endpoint])
+    document["access_control"]["enabled"] = False
+    router_config = credentials_dir / "router.json5"
+    write_private_file(router_config, json.dumps(document).encode())
     router = subprocess.Popen(
-        [sys.executable, "-m", "services.cli.main", "router", "--listen", endpoint],
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "router",
+            "--listen",
+            endpoint,
+            "--config",
+            str(router_config),
+        ],
         cwd=ROOT,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -148,13 +180,15 @@ def one_hop_latency_ms(samples: int) -> tuple[list[float], list[float]]:
             endpoint,
             "--radio",
             "ideal",
+            "--credentials",
+            str(files["world"]),
         ],
         cwd=ROOT,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
     try:
-        with open_client([endpoint]) as session:
+        with open_client([endpoint], credentials=read_credentials(files["operator"])) as session:
             got = threading.Event()
             arrived: list[int] = []
 

@@ -39,6 +39,7 @@ from robot_firmware.control.fuzzy import FuzzyRuleBase
 from robot_firmware.control.trajectories import Trajectory
 from robot_firmware.drivers import Drivers
 from robot_firmware.net.frames import (
+    NO_RUN_ID,
     FrameDecoder,
     RadioFrame,
     Role,
@@ -110,14 +111,22 @@ class Firmware:
     """One robot's control software, reaching its hardware only through `drivers`."""
 
     def __init__(
-        self, mission: RobotMission, drivers: Drivers, key: bytes, swarm_hash: int = 0
+        self,
+        mission: RobotMission,
+        drivers: Drivers,
+        key: bytes,
+        swarm_hash: int = 0,
+        run_id: bytes = NO_RUN_ID,
     ) -> None:
+        """key: the frame key (`derive_frame_key`); run_id: the run's id, carried in and
+        required of every frame (robot_firmware/net/frames.py)."""
         self.mission = mission
         self.drivers = drivers
         self._key = key
         self._swarm_hash = swarm_hash
+        self._run_id = run_id
         n = len(mission.names)
-        self.decoder = FrameDecoder(key, own_id=mission.index, swarm_hash=swarm_hash)
+        self.decoder = FrameDecoder(key, own_id=mission.index, swarm_hash=swarm_hash, run_id=run_id)
         self.state = ControllerState.initial((), mission.sonar_count)
         self.role = RobotRole(
             is_leader=np.array(mission.is_leader),
@@ -241,6 +250,7 @@ class Firmware:
             thetadot_radps=float(rate[2]),
             localised=bool(est.localised),
             swarm_hash=self._swarm_hash,
+            run_id=self._run_id,
         )
         self.frames_sent += 1
         return encode(frame, self._key)

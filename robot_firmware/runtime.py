@@ -29,14 +29,21 @@ from typing import Any, ClassVar
 import numpy as np
 import yaml
 import zenoh
-from pydantic import ConfigDict, Field, PositiveFloat, ValidationError, field_validator
+from pydantic import (
+    ConfigDict,
+    Field,
+    PositiveFloat,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, RobotMission, TickReport
 from robot_firmware.fpga.fabric import Fabric, FabricConfig
 from robot_firmware.net.admin import AdminQueue, Handler
-from robot_firmware.net.frames import SWARM_KEY_ENV_VAR, key_from_secret, swarm_hash_from_name
+from robot_firmware.net.frames import derive_frame_key, swarm_hash_from_name
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
     AdminError,
@@ -57,13 +64,13 @@ from robot_firmware.net.wire import (
 from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
 from robot_firmware.tick_scheduler import TickScheduler, Wait
+from swarm_config.credentials import CREDENTIALS_FILE_ENV, CredentialsFile
 from swarm_config.scenario import load_fuzzy_parameters, load_scenario
 from swarm_config.settings import LayeredSettings, describe_validation_error
 
 log = logging.getLogger("swarm.robot")
 
 NS_PER_S = 1_000_000_000
-DEV_SWARM_SECRET = "swarm-cps development key: set SWARM_KEY"
 
 
 class RobotConfig(LayeredSettings):
@@ -76,7 +83,9 @@ class RobotConfig(LayeredSettings):
     scenario: Path
     connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
     zenoh_config: Path | None = None
-    secret: str = Field(default=DEV_SWARM_SECRET, min_length=1, repr=False)
+    credentials: CredentialsFile = Field(default=None, validate_default=True, repr=False)
+    """Router user and password, the frames' secret and the run id: read from the file named
+    by --credentials or $SWARM_CREDENTIALS_FILE (swarm_config/credentials.py)."""
     telemetry_rate_hz: PositiveFloat = 20.0
     fabric_step_ns: int = Field(default=1_000_000, gt=0)
 
@@ -85,6 +94,18 @@ class RobotConfig(LayeredSettings):
     def _key_chunk(cls, value: str) -> str:
         return check_name("robot or swarm", value)
 
+    @model_validator(mode="after")
+    def _credentials_are_this_robots(self) -> RobotConfig:
+        creds = self.credentials
+        if creds.identity != self.name or creds.swarm != self.swarm:
+            raise ValueError(
+                f"the credentials file is {creds.identity!r} of swarm {creds.swarm!r}, not "
+                f"{self.name!r} of swarm {self.swarm!r}"
+            )
+        if creds.swarm_key is None:
+            raise ValueError(f"the credentials of {self.name!r} hold no swarm key")
+        return self
+
     WHAT: ClassVar[str] = "robot configuration"
     ENV: ClassVar[Mapping[str, str]] = {
         "name": "ROBOT_NAME",
@@ -92,7 +113,7 @@ class RobotConfig(LayeredSettings):
         "scenario": "SWARM_SCENARIO",
         "connect": "ZENOH_CONNECT",
         "zenoh_config": "ZENOH_CONFIG",
-        "secret": SWARM_KEY_ENV_VAR,
+        "credentials": CREDENTIALS_FILE_ENV,
         "telemetry_rate_hz": "TELEMETRY_RATE_HZ",
     }
     ENV_ALIASES: ClassVar[Mapping[str, str]] = {"name": "ROBOT_ID"}
@@ -120,8 +141,9 @@ class RobotProcess:
         self.firmware = Firmware(
             self.mission,
             self.drivers,
-            key_from_secret(config.secret),
+            derive_frame_key(config.credentials.swarm_key_bytes(), config.swarm),
             swarm_hash=swarm_hash_from_name(config.swarm),
+            run_id=config.credentials.run_id_bytes,
         )
         self.period_ns = round(self.mission.params.control_period_s * NS_PER_S)
         self.scheduler = TickScheduler(self.period_ns)
@@ -153,7 +175,7 @@ class RobotProcess:
 
     def run(self) -> int:
         cfg = self.config
-        with open_client(cfg.connect, cfg.zenoh_config) as session:
+        with open_client(cfg.connect, cfg.zenoh_config, cfg.credentials) as session:
             name = cfg.name
             session.declare_subscriber(self.keys.sense(name), self._on_sense)
             session.declare_subscriber(self.keys.radio_rx(name), self._on_frame)

@@ -3,33 +3,58 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from robot_firmware.runtime import RobotConfig
+from swarm_config.credentials import generate_credential_set, write_credential_set
 from swarm_config.settings import SettingsError
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = str(ROOT / "configs" / "scenarios" / "paper.yaml")
 
 
-def test_environment_fills_what_the_command_line_omits() -> None:
+def _credentials(tmp_path: Path, swarm: str) -> dict[str, Path]:
+    return write_credential_set(
+        tmp_path / "credentials", generate_credential_set(swarm, ("robot1", "robot2", "robot3"))
+    )
+
+
+def test_environment_fills_what_the_command_line_omits(tmp_path: Path) -> None:
+    files = _credentials(tmp_path, "bench")
     env = {
         "ROBOT_ID": "robot2",
         "SWARM_NAME": "bench",
         "SWARM_SCENARIO": PAPER,
         "ZENOH_CONNECT": "tcp/10.0.0.1:7447, tcp/10.0.0.2:7447",
-        "SWARM_KEY": "s3cret",
+        "SWARM_CREDENTIALS_FILE": str(files["robot2"]),
     }
     config = RobotConfig.from_sources({}, env)
     assert config.name == "robot2" and config.swarm == "bench"
     assert config.connect == ["tcp/10.0.0.1:7447", "tcp/10.0.0.2:7447"]
-    assert config.secret == "s3cret"
-    assert "s3cret" not in repr(config)
-    wins = RobotConfig.from_sources({"name": "robot3", "connect": ["tcp/127.0.0.1:1"]}, env)
+    assert config.credentials.identity == "robot2"
+    secret = config.credentials.swarm_key
+    assert secret is not None and secret.get_secret_value() not in repr(config)
+    wins = RobotConfig.from_sources(
+        {"name": "robot3", "connect": ["tcp/127.0.0.1:1"], "credentials": files["robot3"]}, env
+    )
     assert wins.name == "robot3" and wins.connect == ["tcp/127.0.0.1:1"]
+    with pytest.raises(SettingsError, match="'robot2' of swarm 'bench', not 'robot3'"):
+        RobotConfig.from_sources({"name": "robot3"}, env)
+
+
+def test_robot_without_credentials_is_told_how_to_give_them() -> None:
+    with pytest.raises(SettingsError) as info:
+        RobotConfig.from_sources({}, {"ROBOT_NAME": "robot1", "SWARM_SCENARIO": PAPER})
+    assert "credentials (or $SWARM_CREDENTIALS_FILE)" in str(info.value)
+    assert "swarm up" in str(info.value)
 
 
 def test_yaml_file_is_the_lowest_layer(tmp_path: Path) -> None:
+    files = _credentials(tmp_path, "lab")
     file = tmp_path / "robot.yaml"
-    file.write_text(f"name: robot1\nscenario: {PAPER}\ntelemetry_rate_hz: 5\nswarm: yard\n")
+    file.write_text(
+        f"name: robot1\nscenario: {PAPER}\ntelemetry_rate_hz: 5\nswarm: yard\n"
+        f"credentials: {files['robot1']}\n"
+    )
     config = RobotConfig.from_sources({}, {"SWARM_NAME": "lab"}, config_file=file)
     assert config.name == "robot1" and config.telemetry_rate_hz == 5.0
     assert config.swarm == "lab"
@@ -48,7 +73,7 @@ def test_bad_value_names_the_field_and_its_variable() -> None:
     assert "telemetry_rate_hz (or $TELEMETRY_RATE_HZ)" in message
 
 
-def test_robot_process_refuses_a_bad_setting_without_traceback() -> None:
+def test_robot_process_refuses_a_bad_setting_without_traceback(tmp_path: Path) -> None:
     result = subprocess.run(
         [
             sys.executable,
@@ -78,6 +103,27 @@ def test_robot_process_refuses_a_bad_setting_without_traceback() -> None:
             "robot9",
             "--scenario",
             PAPER,
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert unknown.returncode == 2 and "credentials" in unknown.stderr
+    assert "SWARM_CREDENTIALS_FILE" in unknown.stderr and "Traceback" not in unknown.stderr
+    files = write_credential_set(tmp_path, generate_credential_set("lab", ("robot9",)))
+    unknown = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "robot",
+            "--name",
+            "robot9",
+            "--scenario",
+            PAPER,
+            "--credentials",
+            str(files["robot9"]),
         ],
         capture_output=True,
         text=True,

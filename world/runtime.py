@@ -45,9 +45,11 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from robot_firmware.net.admin import AdminQueue, Handler
+from robot_firmware.net.frames import claimed_sender
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
     AdminError,
@@ -73,6 +75,12 @@ from robot_firmware.net.wire import (
     encode_clock,
     encode_sense,
     parse_act,
+)
+from swarm_config.credentials import (
+    CREDENTIALS_FILE_ENV,
+    WORLD,
+    OptionalCredentialsFile,
+    check_identity,
 )
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario, load_rule_base
@@ -109,6 +117,10 @@ class WorldConfig(LayeredSettings):
     max_speed: PositiveFloat | None = None
     """Lockstep only: at most this many simulated seconds per wall second (None: as fast as
     the robots answer)."""
+    credentials: OptionalCredentialsFile = Field(default=None, repr=False)
+    """The world's router user and password (swarm_config/credentials.py), from the file
+    named by --credentials or $SWARM_CREDENTIALS_FILE; `swarm world` refuses to start
+    without them."""
 
     WHAT: ClassVar[str] = "world settings"
     ENV: ClassVar[Mapping[str, str]] = {
@@ -117,6 +129,7 @@ class WorldConfig(LayeredSettings):
         "connect": "ZENOH_CONNECT",
         "zenoh_config": "ZENOH_CONFIG",
         "radio_profile": "SWARM_RADIO_PROFILE",
+        "credentials": CREDENTIALS_FILE_ENV,
     }
     ENV_PARSERS: ClassVar[Mapping[str, Callable[[str], object]]] = {"connect": split_endpoints}
 
@@ -140,6 +153,12 @@ class WorldConfig(LayeredSettings):
         if value is not None and not info.data.get("lockstep", False):
             raise ValueError("applies to lockstep runs only (real time runs at 1)")
         return value
+
+    @model_validator(mode="after")
+    def _credentials_are_the_worlds(self) -> WorldConfig:
+        if self.credentials is not None:
+            check_identity(self.credentials, WORLD, self.swarm)
+        return self
 
 
 class WorldProcess:
@@ -167,6 +186,8 @@ class WorldProcess:
         """Act messages applied, and refused per `WireDropReason`."""
         self.malformed_telemetry = 0
         self.unknown_senders = 0
+        self.spoofed_frames = 0
+        """Frames from robotN's transmitter that claim another sender id (dropped)."""
         self._catch_up: Callable[[int], None] | None = None
         self._held_frames: list[tuple[int, bytes]] = []
         self.timing: dict[str, LoopTimingReport] = {}
@@ -248,8 +269,12 @@ class WorldProcess:
             if j is None:
                 self.unknown_senders += 1
                 continue
-            frames.append((j, payload))
             self.barrier.frame(sender)
+            if claimed_sender(payload) not in (None, j):
+                # The medium knows the antenna: a robot cannot speak for another.
+                self.spoofed_frames += 1
+                continue
+            frames.append((j, payload))
         # Deterministic order within one step: by sender index, then arrival.
         self._held_frames.extend(frames)
         if not self.config.lockstep:
@@ -296,7 +321,7 @@ class WorldProcess:
 
     def run(self) -> int:
         cfg = self.config
-        with open_client(cfg.connect, cfg.zenoh_config) as session:
+        with open_client(cfg.connect, cfg.zenoh_config, cfg.credentials) as session:
             keys = self.keys
             session.declare_subscriber(keys.act_all, self._on_act)
             session.declare_subscriber(keys.radio_tx_all, self._on_frame)

@@ -2,12 +2,12 @@
 
 from robot_firmware.net.frames import (
     FRAME_BYTES,
-    SWARM_KEY_ENV_VAR,
     DropReason,
     FrameCounters,
     FrameDecoder,
     RadioFrame,
     Role,
+    derive_frame_key,
     encode,
     key_from_secret,
     parse_frame,
@@ -16,12 +16,12 @@ from robot_firmware.net.frames import (
 
 __all__ = [
     "FRAME_BYTES",
-    "SWARM_KEY_ENV_VAR",
     "DropReason",
     "FrameCounters",
     "FrameDecoder",
     "RadioFrame",
     "Role",
+    "derive_frame_key",
     "encode",
     "key_from_secret",
     "parse_frame",

@@ -27,6 +27,7 @@ from pydantic import BaseModel
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import AdminError, AdminRefusal, parse_reply
 from robot_firmware.net.session import open_client
+from swarm_config.credentials import ProcessCredentials
 
 log = logging.getLogger("swarm.admin")
 
@@ -110,12 +111,14 @@ def ask(
     verb: str,
     body: BaseModel | bytes | None = None,
     timeout_s: float = 3.0,
+    credentials: ProcessCredentials | None = None,
 ) -> bytes | None:
     """Send one admin request to a running swarm; the reply's payload, or None when nobody
-    answered.  body: a request model, raw bytes (e.g. a parameter file), or None."""
+    answered.  body: a request model, raw bytes (e.g. a parameter file), or None;
+    credentials: the operator's (else those of $SWARM_CREDENTIALS_FILE)."""
     keys = SwarmKeys(swarm)
     payload = body.model_dump_json().encode() if isinstance(body, BaseModel) else body
-    with open_client([endpoint]) as session:
+    with open_client([endpoint], credentials=credentials) as session:
         replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
         for reply in replies:
             if reply.ok is not None:
@@ -131,11 +134,12 @@ def admin_request(
     reply_type: type[R],
     body: BaseModel | bytes | None = None,
     timeout_s: float = 3.0,
+    credentials: ProcessCredentials | None = None,
 ) -> R | AdminError | None:
     """Ask a running swarm's process one admin question: the reply as `reply_type`, an
     `AdminError` when the process refused, or None when nobody answered (or the answer fits
     neither)."""
-    payload = ask(swarm, endpoint, target, verb, body, timeout_s)
+    payload = ask(swarm, endpoint, target, verb, body, timeout_s, credentials)
     return None if payload is None else parse_reply(reply_type, payload)
 
 

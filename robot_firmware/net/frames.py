@@ -3,29 +3,41 @@
 A frame stands in for the lwIP UDP broadcast a robot sends to its peers (20 Hz). The
 world's radio medium forwards it as opaque bytes; only robots encode and decode it.
 Nothing here opens a socket, reads a clock or reads the environment: time comes in as
-`now_ns` (simulation nanoseconds) and the swarm key as bytes from the caller.
+`now_ns` (simulation nanoseconds), the key and the run id as bytes from the caller.
 
-Layout, version 1 (`FRAME_FORMAT`, little-endian, no padding, 88 bytes):
+Layout, version 2 (`FRAME_FORMAT`, little-endian, no padding, 96 bytes):
 
 | offset | bytes | struct | field            | meaning                                        |
 |-------:|------:|--------|------------------|------------------------------------------------|
 |      0 |     2 | 2s     | magic            | b"SW"                                          |
-|      2 |     1 | B      | version          | 1                                              |
+|      2 |     1 | B      | version          | 2                                              |
 |      3 |     1 | B      | role             | 0 follower, 1 leader                           |
 |      4 |     2 | H      | sender_id        | robot index of the sender                      |
 |      6 |     2 | H      | swarm_hash       | first two bytes of SHA-256 of the swarm name   |
-|      8 |     4 | I      | sequence         | per-sender counter, wraps at 2**32             |
-|     12 |     8 | Q      | timestamp_ns     | simulation time of the state, nanoseconds      |
-|     20 |     8 | d      | x_m              | position x, metres                             |
-|     28 |     8 | d      | y_m              | position y, metres                             |
-|     36 |     8 | d      | theta_rad        | heading, radians                               |
-|     44 |     8 | d      | xdot_mps         | velocity x, metres per second                  |
-|     52 |     8 | d      | ydot_mps         | velocity y, metres per second                  |
-|     60 |     8 | d      | thetadot_radps   | turn rate, radians per second                  |
-|     68 |     4 | I      | flags            | bit 0 localised; bits 1..31 reserved, zero     |
-|     72 |    16 | 16s    | tag              | HMAC-SHA256 of bytes 0..71, first 16 bytes     |
+|      8 |     8 | 8s     | run_id           | random id of the run the frame belongs to      |
+|     16 |     4 | I      | sequence         | per-sender counter, wraps at 2**32             |
+|     20 |     8 | Q      | timestamp_ns     | simulation time of the state, nanoseconds      |
+|     28 |     8 | d      | x_m              | position x, metres                             |
+|     36 |     8 | d      | y_m              | position y, metres                             |
+|     44 |     8 | d      | theta_rad        | heading, radians                               |
+|     52 |     8 | d      | xdot_mps         | velocity x, metres per second                  |
+|     60 |     8 | d      | ydot_mps         | velocity y, metres per second                  |
+|     68 |     8 | d      | thetadot_radps   | turn rate, radians per second                  |
+|     76 |     4 | I      | flags            | bit 0 localised; bits 1..31 reserved, zero     |
+|     80 |    16 | 16s    | tag              | HMAC-SHA256 of bytes 0..79, first 16 bytes     |
 
-`BODY_FORMAT` covers bytes 0..71 (the authenticated part); `FRAME_FORMAT` adds the tag.
+`BODY_FORMAT` covers bytes 0..79 (the authenticated part); `FRAME_FORMAT` adds the tag.
+Version 1 (88 bytes, no run id) is no longer accepted.
+
+Key: `derive_frame_key` turns the swarm's secret (32 random bytes made per run by `swarm up`,
+read from the robot's credentials file, swarm_config/credentials.py) into the HMAC key with
+HKDF-SHA256 (RFC 5869; `hkdf_sha256`), salt `KEY_SALT` and the swarm name as info, so two
+swarms that share a secret still have different keys.
+
+Run id: simulation time starts at 0 in every run, so a frame's time alone cannot tell a frame
+recorded in an earlier run from a fresh one. Every run has a random `run_id` (in the
+credentials file); it is authenticated with the rest of the body, and a decoder given one
+drops frames of any other run.
 
 Receiving: `FrameDecoder.decode` never raises. It returns the frame, or None and counts
 the drop under one `DropReason` in `counters`. Checks run in this order and the first
@@ -34,8 +46,9 @@ failure names the reason:
 1. input is bytes-like (`not_bytes`);
 2. length is exactly `FRAME_BYTES` (`too_short`, `too_long`);
 3. magic (`bad_magic`) and version (`unsupported_version`);
-4. swarm hash, when the decoder was given one (`wrong_swarm`). This is checked before the
-   tag so that another swarm's traffic on a shared medium is told apart from forgeries;
+4. swarm hash, when the decoder was given one (`wrong_swarm`), then run id, when the decoder
+   was given one (`wrong_run`). Both are checked before the tag so that another swarm's or
+   another run's traffic (a replay of a recording) is told apart from forgeries;
 5. authentication tag, compared in constant time (`bad_tag`). Nothing after this point
    looks at bytes that were not authenticated with the swarm key;
 6. content: role value (`unknown_role`), reserved flag bits (`reserved_flags`), NaN or
@@ -44,16 +57,25 @@ failure names the reason:
 7. the receiver's own frame echoed back (`own_frame`);
 8. age: older than `max_age_ns` (`stale`) or ahead of `now_ns` by more than
    `max_future_ns` (`from_future`);
-9. sequence against the last frame accepted from the same sender, in RFC 1982 serial
-   number arithmetic over 32 bits: equal (`duplicate`) or not newer (`out_of_order`).
-   A sender's entry is forgotten once its last accepted frame is older than
-   `max_age_ns`; any replay of an earlier frame is then stale anyway, and a sender
-   that rebooted with a fresh sequence is heard again. A sender that wants to be
-   heard at once after a reboot starts from `initial_sequence(now_ns)`.
+9. replay, against the sender's replay windows (below): the sequence equals the highest
+   accepted in its window (`duplicate`) or is behind it (`out_of_order`), or it fits no
+   window and its time is not later than every frame accepted from that sender
+   (`out_of_order`).
 
-The key is per swarm. Firmware reads the secret from the environment variable named by
-`SWARM_KEY_ENV_VAR` and turns it into a key with `key_from_secret`; this module only
-names the variable.
+Replay windows. One frame must not be able to lock a sender out: with a single "last
+sequence" per sender, one authentic frame with a sequence far ahead (a replay across a
+reboot, or an insider) made every later frame of the real sender "old". So each sender has
+up to `MAX_WINDOWS_PER_SENDER` windows, each the highest sequence accepted in it and the
+latest time accepted in it. A frame belongs to a window when its sequence is at most
+`REPLAY_WINDOW` behind that window's highest or at most `MAX_SEQUENCE_JUMP` ahead (RFC 1982
+serial arithmetic over 32 bits); it is judged there only. A frame that belongs to no window
+opens a new one, but only when its time is later than every frame accepted from the sender so
+far: a replayed old frame never does, a rebooted sender (any fresh sequence, current time)
+does at once, and the real sender's stream keeps its own window whatever sequence a forged
+frame carried. With all windows in use the one heard from longest ago is forgotten; a window
+whose latest frame is older than `max_age_ns` is forgotten too (any replay into it would be
+stale). A sender that starts from `initial_sequence(now_ns)` after a reboot usually stays in
+its old window and is heard at once either way.
 """
 
 from __future__ import annotations
@@ -66,14 +88,12 @@ import operator
 import struct
 from dataclasses import dataclass, field
 
-SWARM_KEY_ENV_VAR = "SWARM_KEY"
-"""Name of the environment variable holding the swarm's shared secret (read by the firmware)."""
-
 MAGIC = b"SW"
-VERSION = 1
+VERSION = 2
 
-BODY_FORMAT = "<2sBBHHIQ6dI"
-"""Authenticated part: magic, version, role, sender, swarm, sequence, time, pose, rate, flags."""
+BODY_FORMAT = "<2sBBHH8sIQ6dI"
+"""Authenticated part: magic, version, role, sender, swarm, run, sequence, time, pose, rate,
+flags."""
 TAG_BYTES = 16
 FRAME_FORMAT = f"{BODY_FORMAT}{TAG_BYTES}s"
 """Whole frame: `BODY_FORMAT` followed by the truncated HMAC-SHA256 tag."""
@@ -83,8 +103,17 @@ FRAME_STRUCT = struct.Struct(FRAME_FORMAT)
 BODY_BYTES = BODY_STRUCT.size
 FRAME_BYTES = FRAME_STRUCT.size
 
+RUN_ID_BYTES = 8
+NO_RUN_ID = bytes(RUN_ID_BYTES)
+"""The run id of frames made outside a networked run (in-process simulation, tests)."""
+
 MIN_KEY_BYTES = 16
-"""Shortest key accepted; `key_from_secret` gives 32."""
+"""Shortest key accepted; `derive_frame_key` gives 32."""
+MIN_SECRET_BYTES = 16
+"""Shortest secret `derive_frame_key` accepts (a run's secret has 32 random bytes)."""
+KEY_BYTES = 32
+KEY_SALT = b"swarm-cps radio frame key v2"
+"""HKDF salt of the frame key: the purpose, so the secret yields no other key by accident."""
 
 FLAG_LOCALISED = 1 << 0
 RESERVED_FLAGS_MASK = 0xFFFF_FFFF & ~FLAG_LOCALISED
@@ -102,6 +131,12 @@ MAX_ABS_TURN_RATE_RADPS = 100.0
 
 DEFAULT_MAX_AGE_NS = 1_000_000_000
 DEFAULT_MAX_FUTURE_NS = 1_000_000_000
+
+REPLAY_WINDOW = 64
+"""Sequences behind a window's highest that still belong to it (dropped as out of order)."""
+MAX_SEQUENCE_JUMP = 1024
+"""Sequences ahead of a window's highest that still belong to it (lost frames in between)."""
+MAX_WINDOWS_PER_SENDER = 4
 
 _INT_FIELDS: tuple[tuple[str, int], ...] = (
     ("sender_id", U16_MAX),
@@ -131,6 +166,7 @@ class DropReason(enum.Enum):
     BAD_MAGIC = "bad_magic"
     UNSUPPORTED_VERSION = "unsupported_version"
     WRONG_SWARM = "wrong_swarm"
+    WRONG_RUN = "wrong_run"
     BAD_TAG = "bad_tag"
     UNKNOWN_ROLE = "unknown_role"
     RESERVED_FLAGS = "reserved_flags"
@@ -164,6 +200,7 @@ class RadioFrame:
     thetadot_radps: float
     localised: bool
     swarm_hash: int = 0
+    run_id: bytes = NO_RUN_ID
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "role", Role(self.role))
@@ -175,6 +212,7 @@ class RadioFrame:
         for name in _FLOAT_FIELDS:
             object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "localised", bool(self.localised))
+        object.__setattr__(self, "run_id", _check_run_id(self.run_id))
 
     @property
     def flags(self) -> int:
@@ -182,11 +220,40 @@ class RadioFrame:
         return FLAG_LOCALISED if self.localised else 0
 
 
-def key_from_secret(secret: str) -> bytes:
-    """The 32-byte swarm key for a shared secret: SHA-256 of its UTF-8 encoding."""
+def hkdf_sha256(ikm: bytes, salt: bytes, info: bytes, length: int) -> bytes:
+    """HKDF (RFC 5869) with SHA-256: extract a pseudorandom key from `ikm` and `salt`, then
+    expand it to `length` bytes bound to `info`."""
+    hash_bytes = hashlib.sha256().digest_size
+    if not 0 < length <= 255 * hash_bytes:
+        raise ValueError(f"HKDF-SHA256 gives 1..{255 * hash_bytes} bytes, not {length}")
+    prk = hmac.digest(salt or bytes(hash_bytes), ikm, "sha256")
+    okm = b""
+    block = b""
+    counter = 1
+    while len(okm) < length:
+        block = hmac.digest(prk, block + info + bytes([counter]), "sha256")
+        okm += block
+        counter += 1
+    return okm[:length]
+
+
+def derive_frame_key(secret: bytes, swarm_name: str) -> bytes:
+    """The 32-byte HMAC key of a swarm's frames: HKDF-SHA256 of its secret, `KEY_SALT` as
+    salt and the swarm name as info."""
+    if not isinstance(secret, bytes | bytearray) or len(secret) < MIN_SECRET_BYTES:
+        raise ValueError(f"the swarm secret must be at least {MIN_SECRET_BYTES} bytes")
+    if not swarm_name:
+        raise ValueError("the swarm name is empty")
+    return hkdf_sha256(bytes(secret), KEY_SALT, swarm_name.encode("utf-8"), KEY_BYTES)
+
+
+def key_from_secret(secret: str, swarm_name: str = "lab") -> bytes:
+    """The frame key for a text secret (tests, benches, in-process runs): `derive_frame_key`
+    of its UTF-8 bytes, padded by SHA-256 to the minimum length. Networked runs use the
+    random secret of their credentials file instead."""
     if not secret:
         raise ValueError("the swarm secret is empty")
-    return hashlib.sha256(secret.encode("utf-8")).digest()
+    return derive_frame_key(hashlib.sha256(secret.encode("utf-8")).digest(), swarm_name)
 
 
 def swarm_hash_from_name(swarm_name: str) -> int:
@@ -197,6 +264,13 @@ def swarm_hash_from_name(swarm_name: str) -> int:
 def frame_tag(body: bytes, key: bytes) -> bytes:
     """Authentication tag of a frame body: HMAC-SHA256 under `key`, first `TAG_BYTES` bytes."""
     return hmac.digest(key, body, "sha256")[:TAG_BYTES]
+
+
+def sequence_distance(candidate: int, reference: int) -> int:
+    """How far `candidate` is ahead of `reference` (negative: behind) in 32-bit serial
+    number arithmetic (RFC 1982), in -2**31 ..  2**31 - 1."""
+    distance = (candidate - reference) % SEQUENCE_MODULUS
+    return distance - SEQUENCE_MODULUS if distance >= _SEQUENCE_HALF else distance
 
 
 def sequence_is_newer(candidate: int, reference: int) -> bool:
@@ -217,7 +291,7 @@ def initial_sequence(now_ns: int) -> int:
     """A first sequence number for a sender that boots at `now_ns`: simulation milliseconds.
 
     Sending at most one frame per millisecond, a rebooted sender starts ahead of where it
-    stopped (for up to 2**31 ms, about 24 days), so receivers accept it at once.
+    stopped (for up to 2**31 ms, about 24 days).
     """
     return (now_ns // 1_000_000) % SEQUENCE_MODULUS
 
@@ -231,6 +305,7 @@ def encode(frame: RadioFrame, key: bytes) -> bytes:
         int(frame.role),
         frame.sender_id,
         frame.swarm_hash,
+        frame.run_id,
         frame.sequence,
         frame.timestamp_ns,
         frame.x_m,
@@ -268,15 +343,19 @@ def content_problem(frame: RadioFrame) -> DropReason | None:
 
 
 def parse_frame(
-    data: bytes | bytearray | memoryview, key: bytes, *, swarm_hash: int | None = None
+    data: bytes | bytearray | memoryview,
+    key: bytes,
+    *,
+    swarm_hash: int | None = None,
+    run_id: bytes | None = None,
 ) -> RadioFrame | DropReason:
     """Checks 1 to 6 of the module docstring, with no per-sender state; never raises on `data`.
 
-    Returns the frame, or the reason it would be dropped. With `swarm_hash` None the
-    swarm hash field is not checked.
+    Returns the frame, or the reason it would be dropped. With `swarm_hash` (`run_id`) None
+    that field is not checked.
     """
     _check_key(key)
-    return _parse(data, key, swarm_hash)
+    return _parse(data, key, swarm_hash, None if run_id is None else _check_run_id(run_id))
 
 
 @dataclass(slots=True)
@@ -302,10 +381,33 @@ class FrameCounters:
         }
 
 
-class FrameDecoder:
-    """Checks and decodes the frames one robot receives, remembering each sender's sequence.
+@dataclass(slots=True)
+class ReplayWindow:
+    """One stream of a sender's frames: the highest sequence and latest time accepted in it."""
 
-    Sequence state is one entry per sender id (u16), so at most 65,536 entries.
+    highest_sequence: int
+    latest_ns: int
+
+    def offset(self, sequence: int) -> int | None:
+        """How far `sequence` is ahead of the highest (<= 0: behind), or None when it does not
+        belong to this window."""
+        distance = sequence_distance(sequence, self.highest_sequence)
+        return distance if -REPLAY_WINDOW < distance <= MAX_SEQUENCE_JUMP else None
+
+
+@dataclass(slots=True)
+class SenderWindows:
+    """A sender's replay windows, most recently used first, and its latest accepted time."""
+
+    windows: list[ReplayWindow]
+    latest_ns: int
+
+
+class FrameDecoder:
+    """Checks and decodes the frames one robot receives, keeping each sender's replay windows.
+
+    State is at most `MAX_WINDOWS_PER_SENDER` windows per sender id (u16), so bounded by
+    65,536 senders.
     """
 
     def __init__(
@@ -314,6 +416,7 @@ class FrameDecoder:
         *,
         own_id: int | None = None,
         swarm_hash: int | None = None,
+        run_id: bytes | None = None,
         max_age_ns: int = DEFAULT_MAX_AGE_NS,
         max_future_ns: int = DEFAULT_MAX_FUTURE_NS,
     ) -> None:
@@ -326,17 +429,22 @@ class FrameDecoder:
         self._key = bytes(key)
         self.own_id = own_id
         self.swarm_hash = swarm_hash
+        self.run_id = None if run_id is None else _check_run_id(run_id)
         self.max_age_ns = max_age_ns
         self.max_future_ns = max_future_ns
         self.counters = FrameCounters()
         self.last_drop_reason: DropReason | None = None
-        # sender id -> (sequence, timestamp_ns) of the last frame accepted from it
-        self._last_accepted: dict[int, tuple[int, int]] = {}
+        self._senders: dict[int, SenderWindows] = {}
 
     @property
     def tracked_senders(self) -> int:
-        """Senders whose last sequence number is remembered."""
-        return len(self._last_accepted)
+        """Senders with at least one replay window."""
+        return len(self._senders)
+
+    def windows_of(self, sender_id: int) -> int:
+        """How many replay windows `sender_id` has."""
+        sender = self._senders.get(sender_id)
+        return 0 if sender is None else len(sender.windows)
 
     def decode(self, data: bytes | bytearray | memoryview, now_ns: int) -> RadioFrame | None:
         """The frame in `data` if it passes every check at time `now_ns`, else None (counted)."""
@@ -345,13 +453,12 @@ class FrameDecoder:
             self.counters.dropped[outcome] += 1
             self.last_drop_reason = outcome
             return None
-        self._last_accepted[outcome.sender_id] = (outcome.sequence, outcome.timestamp_ns)
         self.counters.accepted += 1
         self.last_drop_reason = None
         return outcome
 
     def _judge(self, data: object, now_ns: int) -> RadioFrame | DropReason:
-        parsed = _parse(data, self._key, self.swarm_hash)
+        parsed = _parse(data, self._key, self.swarm_hash, self.run_id)
         if isinstance(parsed, DropReason):
             return parsed
         if parsed.sender_id == self.own_id:
@@ -360,18 +467,58 @@ class FrameDecoder:
             return DropReason.STALE
         if parsed.timestamp_ns > now_ns + self.max_future_ns:
             return DropReason.FROM_FUTURE
-        last = self._last_accepted.get(parsed.sender_id)
-        if last is None:
-            return parsed
-        last_sequence, last_timestamp_ns = last
-        if last_timestamp_ns < now_ns - self.max_age_ns:
-            del self._last_accepted[parsed.sender_id]
-            return parsed
-        if parsed.sequence == last_sequence:
-            return DropReason.DUPLICATE
-        if not sequence_is_newer(parsed.sequence, last_sequence):
+        problem = self._replay_check(parsed, now_ns)
+        return parsed if problem is None else problem
+
+    def _replay_check(self, frame: RadioFrame, now_ns: int) -> DropReason | None:
+        """Judge `frame` against its sender's windows and, when accepted, record it."""
+        sender = self._senders.get(frame.sender_id)
+        if sender is not None:
+            sender.windows = [w for w in sender.windows if w.latest_ns >= now_ns - self.max_age_ns]
+            if not sender.windows:
+                del self._senders[frame.sender_id]
+                sender = None
+        if sender is None:
+            window = ReplayWindow(frame.sequence, frame.timestamp_ns)
+            self._senders[frame.sender_id] = SenderWindows([window], frame.timestamp_ns)
+            return None
+        for index, window in enumerate(sender.windows):
+            offset = window.offset(frame.sequence)
+            if offset is None:
+                continue
+            if offset == 0:
+                return DropReason.DUPLICATE
+            if offset < 0:
+                return DropReason.OUT_OF_ORDER
+            window.highest_sequence = frame.sequence
+            window.latest_ns = max(window.latest_ns, frame.timestamp_ns)
+            sender.windows.insert(0, sender.windows.pop(index))
+            sender.latest_ns = max(sender.latest_ns, frame.timestamp_ns)
+            return None
+        if frame.timestamp_ns <= sender.latest_ns:
             return DropReason.OUT_OF_ORDER
-        return parsed
+        sender.windows.insert(0, ReplayWindow(frame.sequence, frame.timestamp_ns))
+        if len(sender.windows) > MAX_WINDOWS_PER_SENDER:
+            oldest = min(range(len(sender.windows)), key=lambda i: sender.windows[i].latest_ns)
+            del sender.windows[oldest]
+        sender.latest_ns = frame.timestamp_ns
+        return None
+
+
+_SENDER_ID = struct.Struct("<H")
+_SENDER_ID_OFFSET = 4
+
+
+def claimed_sender(data: bytes) -> int | None:
+    """The sender id a frame claims, read without the key (None when it is too short to say).
+
+    For the radio medium, which knows which robot transmitted (only robotN may put on
+    `radio/tx/robotN`) and drops a frame that claims another sender: every robot holds the
+    swarm key, so the tag alone cannot tell one robot from another.
+    """
+    if len(data) < _SENDER_ID_OFFSET + _SENDER_ID.size:
+        return None
+    return int(_SENDER_ID.unpack_from(data, _SENDER_ID_OFFSET)[0])
 
 
 def _check_key(key: bytes) -> None:
@@ -379,7 +526,15 @@ def _check_key(key: bytes) -> None:
         raise ValueError(f"the swarm key must be at least {MIN_KEY_BYTES} bytes")
 
 
-def _parse(data: object, key: bytes, swarm_hash: int | None) -> RadioFrame | DropReason:
+def _check_run_id(run_id: bytes) -> bytes:
+    if not isinstance(run_id, bytes | bytearray) or len(run_id) != RUN_ID_BYTES:
+        raise ValueError(f"the run id must be {RUN_ID_BYTES} bytes")
+    return bytes(run_id)
+
+
+def _parse(
+    data: object, key: bytes, swarm_hash: int | None, run_id: bytes | None
+) -> RadioFrame | DropReason:
     if not isinstance(data, bytes | bytearray | memoryview):
         return DropReason.NOT_BYTES
     try:
@@ -396,6 +551,7 @@ def _parse(data: object, key: bytes, swarm_hash: int | None) -> RadioFrame | Dro
         role,
         sender_id,
         frame_swarm_hash,
+        frame_run_id,
         sequence,
         timestamp_ns,
         x_m,
@@ -413,6 +569,8 @@ def _parse(data: object, key: bytes, swarm_hash: int | None) -> RadioFrame | Dro
         return DropReason.UNSUPPORTED_VERSION
     if swarm_hash is not None and frame_swarm_hash != swarm_hash:
         return DropReason.WRONG_SWARM
+    if run_id is not None and frame_run_id != run_id:
+        return DropReason.WRONG_RUN
     if not hmac.compare_digest(frame_tag(raw[:BODY_BYTES], key), tag):
         return DropReason.BAD_TAG
     if role not in _ROLE_VALUES:
@@ -423,6 +581,7 @@ def _parse(data: object, key: bytes, swarm_hash: int | None) -> RadioFrame | Dro
         role=Role(role),
         sender_id=sender_id,
         swarm_hash=frame_swarm_hash,
+        run_id=frame_run_id,
         sequence=sequence,
         timestamp_ns=timestamp_ns,
         x_m=x_m,

@@ -40,6 +40,15 @@ class SwarmKeys:
     def root(self) -> str:
         return f"swarm/{self.swarm}"
 
+    @property
+    def everything(self) -> str:
+        """Every key of the swarm (access control: what the operator may read)."""
+        return f"{self.root}/**"
+
+    def everything_under(self, chunk: str) -> str:
+        """Every key under `swarm/<swarm>/<chunk>/`, e.g. every admin verb or liveliness token."""
+        return f"{self.root}/{chunk}/**"
+
     def act(self, robot: str) -> str:
         return f"{self.root}/wire/{robot}/act"
 

@@ -1,17 +1,27 @@
 """One place that turns command-line and environment settings into a Zenoh session.
 
 Every process of the swarm is a client of the router (DESIGN.md §2): `client_config` starts
-from `configs/zenoh/client.json5` (wait for the router, retry, short lease) and overrides the
-endpoints; `router_config` does the same for the router from `configs/zenoh/router.json5`.
+from `configs/zenoh/client.json5` (wait for the router, retry, short lease), overrides the
+endpoints and logs in with the process's own user and password (`transport/auth/usrpwd`, from
+its credentials file: swarm_config/credentials.py); `router_config` does the same for the
+router from `configs/zenoh/router.json5` (or the per-run file `swarm up` generates with the
+router's user dictionary and access control: services/router/access.py).
+
+A client given no credentials uses the file named by `$SWARM_CREDENTIALS_FILE` when it is set
+(how test harnesses and your own scripts reach a running swarm), and otherwise connects
+without any: a router that requires them refuses it.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
 import zenoh
+
+from swarm_config.credentials import CREDENTIALS_FILE_ENV, ProcessCredentials, read_credentials
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "zenoh"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -25,12 +35,25 @@ def _load(path: Path | None, default_name: str) -> zenoh.Config:
 
 
 def client_config(
-    connect: Sequence[str] = (DEFAULT_ENDPOINT,), config_file: Path | None = None
+    connect: Sequence[str] = (DEFAULT_ENDPOINT,),
+    config_file: Path | None = None,
+    credentials: ProcessCredentials | None = None,
 ) -> zenoh.Config:
+    """A client's config; with `credentials`, it logs in as their identity."""
     config = _load(config_file, "client.json5")
     config.insert_json5("mode", json.dumps("client"))
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if credentials is not None:
+        login = {"user": credentials.identity, "password": credentials.password.get_secret_value()}
+        config.insert_json5("transport/auth/usrpwd", json.dumps(login))
     return config
+
+
+def credentials_from_environment() -> ProcessCredentials | None:
+    """The credentials in the file named by $SWARM_CREDENTIALS_FILE, None when it is unset
+    (CredentialsError when it names a file that cannot be used)."""
+    path = os.environ.get(CREDENTIALS_FILE_ENV)
+    return read_credentials(Path(path)) if path else None
 
 
 def router_config(
@@ -43,10 +66,16 @@ def router_config(
     return config
 
 
-def open_client(connect: Sequence[str], config_file: Path | None = None) -> zenoh.Session:
-    """A client session; with the default config it waits for the router to come up."""
+def open_client(
+    connect: Sequence[str],
+    config_file: Path | None = None,
+    credentials: ProcessCredentials | None = None,
+) -> zenoh.Session:
+    """A client session logged in with `credentials` (else those of $SWARM_CREDENTIALS_FILE,
+    else none); with the default config it waits for the router to come up."""
     zenoh.init_log_from_env_or("error")
-    return zenoh.open(client_config(connect, config_file))
+    login = credentials if credentials is not None else credentials_from_environment()
+    return zenoh.open(client_config(connect, config_file, login))
 
 
 def split_endpoints(text: str) -> list[str]:

@@ -21,6 +21,15 @@ from typing import TypeVar
 from pydantic import BaseModel
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from swarm_config.credentials import (
+    CREDENTIALS_DIR_NAME,
+    CREDENTIALS_FILE_ENV,
+    HOW_TO_GET_CREDENTIALS,
+    OPERATOR,
+    CredentialsError,
+    ProcessCredentials,
+    read_credentials,
+)
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
 from swarm_config.settings import LayeredSettings, SettingsError
 
@@ -32,6 +41,7 @@ class UsageError(Exception):
 
 
 DEFAULT_SCENARIO = str(DEFAULT_SCENARIO_PATH)
+DEFAULT_OPERATOR_CREDENTIALS = Path("runs/swarm") / CREDENTIALS_DIR_NAME / f"{OPERATOR}.json"
 MAX_SPEED_HELP = (
     "with --lockstep: run at most X simulated seconds per wall second, e.g. 1 to watch a "
     "deterministic run at real speed (default: as fast as the robots answer)"
@@ -93,8 +103,11 @@ def _cmd_world(args: argparse.Namespace) -> int:
         "out_dir": args.out,
         "radio_profile": args.radio,
         "max_speed": args.max_speed,
+        "credentials": args.credentials,
     }
     config = _settings(WorldConfig, given, args.config)
+    if config.credentials is None:
+        raise UsageError(f"no credentials: {HOW_TO_GET_CREDENTIALS}")
     world = WorldProcess(config, load_scenario(config.scenario))
     _install_stop(world.stop)
     return world.run()
@@ -108,6 +121,7 @@ def _cmd_robot(args: argparse.Namespace) -> int:
         "swarm": args.swarm,
         "scenario": args.scenario,
         "connect": split_endpoints(args.connect) if args.connect else None,
+        "credentials": args.credentials,
     }
     robot = RobotProcess(_settings(RobotConfig, given, args.config))
     _install_stop(robot.stop)
@@ -117,13 +131,51 @@ def _cmd_robot(args: argparse.Namespace) -> int:
 S = TypeVar("S", bound=LayeredSettings)
 
 
-def _settings(kind: type[S], given: dict[str, object], config_file: str | None) -> S:
+def _settings(
+    kind: type[S],
+    given: dict[str, object],
+    config_file: str | None,
+    environ: dict[str, str] | None = None,
+) -> S:
     """A process's settings from its YAML file, the environment and the flags; a bad one is
     a usage error naming the field (and its variable)."""
     try:
-        return kind.from_sources(given, config_file=Path(config_file) if config_file else None)
+        return kind.from_sources(
+            given, environ, config_file=Path(config_file) if config_file else None
+        )
     except SettingsError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _cmd_credentials(args: argparse.Namespace) -> int:
+    """Write a credentials set for a scenario's robots into DIR: keep the secrets of a complete
+    set already there (unless --rotate), always with a new run id."""
+    from services.router.access import write_router_config
+    from swarm_config.credentials import (
+        generate_credential_set,
+        read_credential_set,
+        write_credential_set,
+    )
+
+    scenario = load_scenario(
+        Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
+    )
+    swarm = _swarm(args)
+    directory = Path(args.dir)
+    kept = False
+    credentials = generate_credential_set(swarm, scenario.robot_names)
+    if not args.rotate and directory.exists():
+        try:
+            existing = read_credential_set(directory, scenario.robot_names)
+        except CredentialsError:
+            existing = None
+        if existing is not None and existing.swarm == swarm:
+            credentials, kept = existing.with_new_run_id(), True
+    write_credential_set(directory, credentials)
+    write_router_config(directory, credentials, args.listen or [DEFAULT_ENDPOINT])
+    what = "kept the secrets, new run id" if kept else "new secrets"
+    print(f"credentials for {', '.join(credentials.identities)} in {directory} ({what})")
+    return 0
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
@@ -146,6 +198,9 @@ def _cmd_up(args: argparse.Namespace) -> int:
             "max_speed": args.max_speed,
         },
         None,
+        # The run's credentials are made by the launcher, not taken from the environment
+        # (which may name the operator's file of another run).
+        {k: v for k, v in os.environ.items() if k != CREDENTIALS_FILE_ENV},
     )
     scenario = load_scenario(world.scenario)
     out_dir = Path(args.out)
@@ -162,8 +217,12 @@ def _cmd_up(args: argparse.Namespace) -> int:
         dashboard=not args.no_dashboard,
         web_port=args.web_port,
         grpc_port=args.grpc_port,
+        credentials_dir=Path(args.credentials) if args.credentials else None,
     )
-    launcher = Launcher(plan)
+    try:
+        launcher = Launcher(plan)
+    except CredentialsError as exc:
+        raise UsageError(str(exc)) from None
     _install_stop(launcher.stop)
 
     def ready() -> None:
@@ -176,6 +235,11 @@ def _cmd_up(args: argparse.Namespace) -> int:
         )
         print(
             f"logs: {out_dir / 'logs'}/<process>.log; summary: {out_dir / 'summary.json'}",
+            flush=True,
+        )
+        print(
+            f"credentials: {launcher.credentials_dir}/<identity>.json (new for this run; the "
+            f"swarm command line uses {launcher.credentials_dir}/{OPERATOR}.json)",
             flush=True,
         )
         if plan.dashboard:
@@ -238,7 +302,8 @@ def _ask(args: argparse.Namespace, target: str, verb: str, body: BaseModel | byt
 
     endpoint = _endpoints(args.connect)[0]
     swarm = _swarm(args)
-    payload = ask(swarm, endpoint, target, verb, body, timeout_s=args.timeout)
+    credentials = _operator_credentials(args.credentials)
+    payload = ask(swarm, endpoint, target, verb, body, args.timeout, credentials)
     if payload is None:
         raise UsageError(
             f"no answer from {target} of swarm {swarm!r} at {endpoint} "
@@ -357,6 +422,20 @@ def _endpoints(given: str | None) -> list[str]:
     return split_endpoints(given or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT))
 
 
+def _operator_credentials(given: str | None) -> ProcessCredentials:
+    """The credentials the command line talks to a swarm with: --credentials FILE, else
+    $SWARM_CREDENTIALS_FILE, else runs/swarm/credentials/operator.json when it exists."""
+    source = given or os.environ.get(CREDENTIALS_FILE_ENV)
+    if not source and DEFAULT_OPERATOR_CREDENTIALS.exists():
+        source = str(DEFAULT_OPERATOR_CREDENTIALS)
+    if not source:
+        raise UsageError(f"no operator credentials: {HOW_TO_GET_CREDENTIALS}")
+    try:
+        return read_credentials(Path(source))
+    except CredentialsError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _swarm(args: argparse.Namespace) -> str:
     swarm: str = args.swarm or os.environ.get("SWARM_NAME") or "lab"
     return swarm
@@ -409,8 +488,17 @@ def build_parser() -> argparse.ArgumentParser:
             "$ZENOH_CONNECT)",
         )
 
+    def credentials_option(p: argparse.ArgumentParser, default: str) -> None:
+        p.add_argument(
+            "--credentials",
+            metavar="FILE",
+            help=f"credentials file (default: ${CREDENTIALS_FILE_ENV}{default}); `swarm up` "
+            f"writes one per process to DIR/{CREDENTIALS_DIR_NAME}/",
+        )
+
     def admin_query_options(p: argparse.ArgumentParser) -> None:
         swarm_options(p)
+        credentials_option(p, f", else {DEFAULT_OPERATOR_CREDENTIALS} when it exists")
         p.add_argument(
             "--timeout",
             type=float,
@@ -465,7 +553,37 @@ def build_parser() -> argparse.ArgumentParser:
         "--swarm", help="swarm name, the first chunk of every key (default: $SWARM_NAME, else lab)"
     )
     up.add_argument("--port", type=int, default=7447, help="router TCP port on 127.0.0.1")
+    up.add_argument(
+        "--credentials",
+        metavar="DIR",
+        help=f"use the credentials in DIR (written by an earlier run or by `swarm credentials`; "
+        f"a new run id is written into them) instead of a fresh set in "
+        f"DIR/{CREDENTIALS_DIR_NAME}/",
+    )
     up.set_defaults(handler=_cmd_up)
+
+    creds = sub.add_parser(
+        "credentials",
+        help="write the credentials of a swarm's processes (and its router config) into DIR",
+        description=(
+            "One file per identity (router, world, launcher, dashboard, operator and every "
+            "robot of the scenario), mode 0600 in a 0700 directory, the router's user file and "
+            "its config with the access control of the run. A complete set already in DIR "
+            "keeps its secrets (only the run id is new) unless --rotate is given. `swarm up` "
+            "makes a fresh set by itself; this is for containers and your own deployments."
+        ),
+    )
+    creds.add_argument("dir", metavar="DIR", help="the credentials directory")
+    creds.add_argument("--scenario", metavar="FILE", help="scenario YAML (its robots)")
+    creds.add_argument("--swarm", help="swarm name (default: $SWARM_NAME, else lab)")
+    creds.add_argument("--rotate", action="store_true", help="new secrets even if DIR has some")
+    creds.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"the router config's listen endpoint (repeatable; default {DEFAULT_ENDPOINT})",
+    )
+    creds.set_defaults(handler=_cmd_credentials)
 
     for name, text, handler in (
         ("status", "show the processes of a running swarm", _cmd_status),
@@ -550,6 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
     world.add_argument("--duration", type=float, metavar="S")
     world.add_argument("--out", metavar="DIR", help="where to write summary.json")
     world.add_argument("--radio", metavar="PROFILE", help="override the scenario's radio profile")
+    credentials_option(world, "")
     swarm_options(world)
     world.set_defaults(handler=_cmd_world)
 
@@ -559,7 +678,8 @@ def build_parser() -> argparse.ArgumentParser:
         description=(
             "One robot: the FPGA register model and the firmware. Settings fall back to "
             "$ROBOT_NAME (or $ROBOT_ID), $SWARM_SCENARIO, $SWARM_NAME, $ZENOH_CONNECT and "
-            "$SWARM_KEY (the swarm's frame authentication secret)."
+            "$SWARM_CREDENTIALS_FILE (the path of its credentials file: router login, frame "
+            "secret, run id)."
         ),
     )
     robot.add_argument("--name", help="robot name, e.g. robot1")
@@ -570,6 +690,7 @@ def build_parser() -> argparse.ArgumentParser:
         "telemetry_rate_hz, ...); environment and flags override it",
     )
     robot.add_argument("--scenario", metavar="FILE")
+    credentials_option(robot, "")
     swarm_options(robot)
     robot.set_defaults(handler=_cmd_robot)
 

@@ -19,6 +19,13 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from swarm_config.credentials import (
+    CREDENTIALS_FILE_ENV,
+    DASHBOARD,
+    HOW_TO_GET_CREDENTIALS,
+    check_identity,
+    read_credentials,
+)
 from swarm_config.scenario import ScenarioError, load_scenario
 
 EXIT_USAGE = 2
@@ -52,11 +59,18 @@ def run_dashboard(args: argparse.Namespace) -> int:
     from services.dashboard.live import DashboardConfig, DashboardService
 
     scenario_path = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
+    credentials_file = args.credentials or os.environ.get(CREDENTIALS_FILE_ENV)
+    if not credentials_file:
+        return _usage_error("dashboard", f"no credentials: {HOW_TO_GET_CREDENTIALS}")
     try:
         scenario = load_scenario(scenario_path)
+        credentials = read_credentials(Path(credentials_file))
+        swarm = args.swarm or os.environ.get("SWARM_NAME", "lab")
+        check_identity(credentials, DASHBOARD, swarm)
         config = DashboardConfig(
+            credentials=credentials,
             scenario=scenario_path,
-            swarm=args.swarm or os.environ.get("SWARM_NAME", "lab"),
+            swarm=swarm,
             connect=split_endpoints(
                 args.connect or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT)
             ),
@@ -173,6 +187,12 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
         "--out",
         metavar="DIR",
         help="write DIR/dashboard.rrd (default: no file, live only)",
+    )
+    dashboard.add_argument(
+        "--credentials",
+        metavar="FILE",
+        help=f"the dashboard's credentials file (default: ${CREDENTIALS_FILE_ENV}; `swarm up` "
+        "writes DIR/credentials/dashboard.json)",
     )
     dashboard.add_argument(
         "--memory-limit",

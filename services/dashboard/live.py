@@ -47,6 +47,7 @@ from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.scene import SwarmScene, Update
+from swarm_config.credentials import ProcessCredentials
 from swarm_config.scenario import Scenario
 
 log = logging.getLogger("swarm.dashboard")
@@ -74,6 +75,8 @@ class DashboardConfig(BaseModel):
     """How long records gather before they go out as one chunk per entity: fewer, larger
     chunks keep the file, the server's buffer and the browser's work small."""
     queue_size: int = Field(default=20_000, ge=1)
+    credentials: ProcessCredentials | None = Field(default=None, repr=False)
+    """The dashboard's router user and password (it may subscribe, nothing else)."""
 
 
 def grpc_url(host: str, grpc_port: int) -> str:
@@ -184,7 +187,9 @@ class DashboardService:
 
     def _open_session(self) -> None:
         try:
-            self._session = open_client(self.config.connect, self.config.zenoh_config)
+            self._session = open_client(
+                self.config.connect, self.config.zenoh_config, self.config.credentials
+            )
         except Exception as exc:  # reported by the main thread
             self._connect_error = exc
         self._connected.set()

@@ -13,6 +13,11 @@ robot: a power cut) and `restart` (start a robot again, killing it first if it s
 A router that dies is started again at once; every other process is a client that waits for
 it and reconnects.  A robot that dies stays down (a power cut) until it is restarted.
 The process factory is injectable so tests can substitute their own.
+
+Every run gets fresh credentials (swarm_config/credentials.py) in `<out>/credentials/`: one
+file per identity (router, world, launcher, dashboard, operator, each robot), the router's
+user file and its config with the run's access control (services/router/access.py).  Each
+child is given the path of its own file in `$SWARM_CREDENTIALS_FILE`, never a secret.
 """
 
 from __future__ import annotations
@@ -45,6 +50,15 @@ from robot_firmware.net.messages import (
     refusal_of,
 )
 from robot_firmware.net.session import open_client
+from services.router.access import write_router_config
+from swarm_config.credentials import (
+    CREDENTIALS_DIR_NAME,
+    CREDENTIALS_FILE_ENV,
+    LAUNCHER,
+    generate_credential_set,
+    read_credential_set,
+    write_credential_set,
+)
 from swarm_config.settings import describe_validation_error
 
 log = logging.getLogger("swarm.launcher")
@@ -93,6 +107,9 @@ class LaunchPlan:
     web_port: int = 9090
     grpc_port: int = 9876
     extra_env: dict[str, str] = field(default_factory=dict)
+    credentials_dir: Path | None = None
+    """A credentials set to use (its secrets are kept, its run id renewed); None: a fresh set
+    in `<out_dir>/credentials/`."""
 
     @property
     def viewer_url(self) -> str:
@@ -111,10 +128,22 @@ class Launcher:
         self._admin = AdminQueue()
         logs = plan.out_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
+        # Credentials for this run (a new run id at least); children get their file's path.
+        if plan.credentials_dir is None:
+            self.credentials_dir = plan.out_dir / CREDENTIALS_DIR_NAME
+            self.credentials = generate_credential_set(plan.swarm, plan.robots)
+        else:
+            self.credentials_dir = plan.credentials_dir
+            given = read_credential_set(plan.credentials_dir, plan.robots)
+            self.credentials = given.with_new_run_id()
+        self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
+        router_config = write_router_config(self.credentials_dir, self.credentials, [plan.endpoint])
         cli = [sys.executable, "-m", "services.cli.main"]
         connect = ["--connect", plan.endpoint, "--swarm", plan.swarm]
         self.children["router"] = Child(
-            "router", [*cli, "router", "--listen", plan.endpoint], logs / "router.log"
+            "router",
+            [*cli, "router", "--listen", plan.endpoint, "--config", str(router_config)],
+            logs / "router.log",
         )
         world = [
             *cli,
@@ -153,9 +182,11 @@ class Launcher:
             ]
             self.children["dashboard"] = Child("dashboard", dashboard, logs / "dashboard.log")
 
-    def _env(self) -> dict[str, str]:
+    def _env(self, name: str) -> dict[str, str]:
         env = dict(os.environ)
         env.update(self.plan.extra_env)
+        env.pop("SWARM_KEY", None)  # secrets never travel in a child's environment
+        env[CREDENTIALS_FILE_ENV] = str(self.credential_files[name])
         env["PYTHONUNBUFFERED"] = "1"
         return env
 
@@ -163,7 +194,7 @@ class Launcher:
         child = self.children[name]
         if child.log_file is None:
             child.log_file = child.log_path.open("ab")
-        child.process = self.factory(child.argv, child.log_file, self._env())
+        child.process = self.factory(child.argv, child.log_file, self._env(name))
         child.killed = False
         log.info("started %s (pid %d)", name, child.process.pid)
 
@@ -237,7 +268,8 @@ class Launcher:
     def up(self, on_ready: Callable[[], None] | None = None) -> int:
         """Start everything and supervise until the world ends or a stop is asked."""
         self.start("router")
-        with open_client([self.plan.endpoint]) as session:
+        launcher = self.credentials.for_identity(LAUNCHER)
+        with open_client([self.plan.endpoint], credentials=launcher) as session:
             session.declare_queryable(self.keys.admin("launcher", "*"), self._admin.on_query)
             token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
             self.start("world")

@@ -16,6 +16,8 @@ from typing import IO
 import pyarrow as pa
 import pytest
 
+from swarm_config.credentials import generate_credential_set, write_credential_set
+
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
 
@@ -90,8 +92,17 @@ def start(name: str, argv: list[str], log_dir: Path) -> Child:
     return Child(name, process, log_path, log_file)
 
 
+def swarm_credentials(base: Path, port: int) -> Path:
+    """The credentials shared by dashboards started before the swarm on `port` and that swarm
+    (`swarm up --credentials`): made by the first dashboard."""
+    return base / f"credentials-{port}"
+
+
 def start_swarm(out: Path, port: int, *extra: str) -> Child:
     argv = ["-m", "services.cli.main", "up", "--out", str(out), "--port", str(port)]
+    shared = swarm_credentials(out.parent, port)
+    if shared.exists():
+        argv += ["--credentials", str(shared)]
     return start("swarm", [*argv, "--no-dashboard", *extra], out.parent / "logs")
 
 
@@ -106,10 +117,15 @@ class Dashboard:
 
 def start_dashboard(name: str, out: Path, router_port: int, log_dir: Path) -> Dashboard:
     web_port, grpc_port = free_port(), free_port()
+    shared = swarm_credentials(log_dir.parent, router_port)
+    if not shared.exists():
+        write_credential_set(shared, generate_credential_set("lab", ("robot1", "robot2", "robot3")))
     argv = [
         "-m",
         "services.dashboard",
         "dashboard",
+        "--credentials",
+        str(shared / "dashboard.json"),
         "--scenario",
         str(PAPER),
         "--connect",

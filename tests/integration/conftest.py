@@ -81,8 +81,13 @@ class LiveSwarm:
 
 
 @pytest.fixture
-def live_swarm(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[LiveSwarm]:
-    """A swarm started with `swarm up` (no duration), stopped with Ctrl-C at the end."""
+def live_swarm(
+    tmp_path: Path, request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[LiveSwarm]:
+    """A swarm started with `swarm up` (no duration), stopped with Ctrl-C at the end.
+
+    The test talks to it as the operator: $SWARM_CREDENTIALS_FILE names the run's operator
+    credentials for the test's own clients and the `swarm` commands it runs."""
     extra = getattr(request, "param", ())
     port = free_port()
     process = subprocess.Popen(
@@ -113,6 +118,7 @@ def live_swarm(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[LiveS
         if line.startswith("swarm ") or not line:
             break
     assert any(line.startswith("swarm ") for line in lines), "".join(lines)
+    monkeypatch.setenv("SWARM_CREDENTIALS_FILE", str(tmp_path / "credentials" / "operator.json"))
     swarm = LiveSwarm(process, port, tmp_path)
     try:
         yield swarm

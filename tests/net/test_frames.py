@@ -1,10 +1,13 @@
-"""Radio frame codec: layout, round trip, every drop reason, replay handling, fuzzing."""
+"""Radio frame codec: layout, round trip, key derivation, every drop reason, replay windows,
+attacks with keys from the repository's history and frames of another run, fuzzing."""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import hmac
 import re
+import secrets
 import struct
 from typing import Any
 
@@ -16,15 +19,17 @@ from robot_firmware.net import frames
 from robot_firmware.net.frames import (
     BODY_BYTES,
     BODY_STRUCT,
+    DEFAULT_MAX_FUTURE_NS,
     FRAME_BYTES,
     FRAME_FORMAT,
-    SWARM_KEY_ENV_VAR,
     DropReason,
     FrameDecoder,
     RadioFrame,
     Role,
+    derive_frame_key,
     encode,
     frame_tag,
+    hkdf_sha256,
     initial_sequence,
     key_from_secret,
     next_sequence,
@@ -36,6 +41,8 @@ from robot_firmware.net.frames import (
 KEY = key_from_secret("test swarm secret")
 OTHER_KEY = key_from_secret("another swarm secret")
 SWARM_HASH = swarm_hash_from_name("alpha")
+RUN_ID = bytes.fromhex("0123456789abcdef")
+OTHER_RUN_ID = bytes.fromhex("fedcba9876543210")
 OWN_ID = 7
 NOW_NS = 50_000_000_000
 SECOND_NS = 1_000_000_000
@@ -47,6 +54,7 @@ BODY_FIELDS = (
     "role",
     "sender_id",
     "swarm_hash",
+    "run_id",
     "sequence",
     "timestamp_ns",
     "x_m",
@@ -64,6 +72,7 @@ def make_frame(**overrides: Any) -> RadioFrame:
         "role": Role.LEADER,
         "sender_id": 1,
         "swarm_hash": SWARM_HASH,
+        "run_id": RUN_ID,
         "sequence": 100,
         "timestamp_ns": NOW_NS,
         "x_m": 1.25,
@@ -85,6 +94,7 @@ def body_fields(frame: RadioFrame) -> dict[str, Any]:
         "role": int(frame.role),
         "sender_id": frame.sender_id,
         "swarm_hash": frame.swarm_hash,
+        "run_id": frame.run_id,
         "sequence": frame.sequence,
         "timestamp_ns": frame.timestamp_ns,
         "x_m": frame.x_m,
@@ -105,7 +115,11 @@ def craft(key: bytes = KEY, **overrides: Any) -> bytes:
 
 
 def new_decoder(**options: Any) -> FrameDecoder:
-    settings_: dict[str, Any] = {"own_id": OWN_ID, "swarm_hash": SWARM_HASH} | options
+    settings_: dict[str, Any] = {
+        "own_id": OWN_ID,
+        "swarm_hash": SWARM_HASH,
+        "run_id": RUN_ID,
+    } | options
     return FrameDecoder(KEY, **settings_)
 
 
@@ -130,7 +144,7 @@ def test_documented_layout_table_matches_the_struct_formats() -> None:
         assert int(row_bytes) == struct.calcsize("<" + row_format)
         offset += int(row_bytes)
         formats.append(row_format)
-    assert offset == FRAME_BYTES == 88
+    assert offset == FRAME_BYTES == 96
     assert struct.calcsize("<" + "".join(formats)) == struct.calcsize(FRAME_FORMAT)
     names = {name for *_, name in rows}
     frame_fields = {f.name for f in dataclasses.fields(RadioFrame)} - {"localised"}
@@ -142,6 +156,7 @@ def test_documented_layout_table_matches_the_struct_formats() -> None:
     [
         make_frame(),
         make_frame(role=Role.FOLLOWER, localised=False, sender_id=0, swarm_hash=0),
+        make_frame(run_id=bytes(8)),
         make_frame(sender_id=0xFFFF, sequence=0xFFFF_FFFF, timestamp_ns=NOW_NS + SECOND_NS),
         make_frame(x_m=-1.0e4, y_m=1.0e4, theta_rad=-10.0, thetadot_radps=100.0),
         make_frame(xdot_mps=60.0, ydot_mps=-80.0, x_m=-0.0, theta_rad=3.141592653589793),
@@ -149,11 +164,12 @@ def test_documented_layout_table_matches_the_struct_formats() -> None:
 )
 def test_round_trip_preserves_every_field(frame: RadioFrame) -> None:
     data = encode(frame, KEY)
-    assert len(data) == FRAME_BYTES == 88
+    assert len(data) == FRAME_BYTES == 96
     assert data[:2] == b"SW"
-    assert data[2] == 1
+    assert data[2] == 2
+    assert data[8:16] == frame.run_id
 
-    decoded = new_decoder(swarm_hash=frame.swarm_hash).decode(data, NOW_NS)
+    decoded = new_decoder(swarm_hash=frame.swarm_hash, run_id=frame.run_id).decode(data, NOW_NS)
 
     assert decoded == frame
     for field in dataclasses.fields(RadioFrame):
@@ -229,11 +245,69 @@ def test_short_or_empty_keys_are_refused() -> None:
         key_from_secret("")
 
 
-def test_key_from_secret_is_a_stable_32_byte_key_and_env_var_is_named() -> None:
-    assert SWARM_KEY_ENV_VAR == "SWARM_KEY"
-    assert key_from_secret("s3cret") == key_from_secret("s3cret")
-    assert len(key_from_secret("s3cret")) == 32
-    assert key_from_secret("s3cret") != key_from_secret("s3cret ")
+# RFC 5869, appendix A, test cases 1-3 (SHA-256): (IKM, salt, info, L, OKM).
+RFC5869_VECTORS = [
+    (
+        "0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b",
+        "000102030405060708090a0b0c",
+        "f0f1f2f3f4f5f6f7f8f9",
+        42,
+        "3cb25f25faacd57a90434f64d0362f2a2d2d0a90cf1a5a4c5db02d56ecc4c5bf34007208d5b887185865",
+    ),
+    (
+        "".join(f"{i:02x}" for i in range(0x00, 0x50)),
+        "".join(f"{i:02x}" for i in range(0x60, 0xB0)),
+        "".join(f"{i:02x}" for i in range(0xB0, 0x100)),
+        82,
+        "b11e398dc80327a1c8e7f78c596a49344f012eda2d4efad8a050cc4c19afa97c59045a99cac7827271cb41c65e"
+        "590e09da3275600c2f09b8367793a9aca3db71cc30c58179ec3e87c14c01d5c1f3434f1d87",
+    ),
+    (
+        "0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b0b",
+        "",
+        "",
+        42,
+        "8da4e775a563c18f715f802a063c5a31b8a11f5c5ee1879ec3454e5f3c738d2d9d201395faa4b61a96c8",
+    ),
+]
+
+
+@pytest.mark.parametrize(("ikm", "salt", "info", "length", "okm"), RFC5869_VECTORS)
+def test_hkdf_matches_the_rfc_5869_test_vectors(
+    ikm: str, salt: str, info: str, length: int, okm: str
+) -> None:
+    result = hkdf_sha256(bytes.fromhex(ikm), bytes.fromhex(salt), bytes.fromhex(info), length)
+    assert result.hex() == okm
+
+
+def test_hkdf_refuses_impossible_lengths() -> None:
+    with pytest.raises(ValueError):
+        hkdf_sha256(b"k", b"", b"", 0)
+    with pytest.raises(ValueError):
+        hkdf_sha256(b"k", b"", b"", 255 * 32 + 1)
+
+
+def test_frame_key_is_hkdf_of_the_secret_with_the_swarm_name_as_info() -> None:
+    secret = bytes(range(32))
+    key = derive_frame_key(secret, "alpha")
+    assert len(key) == 32
+    assert key == hkdf_sha256(secret, frames.KEY_SALT, b"alpha", 32)
+    assert key != derive_frame_key(secret, "beta")
+    assert key != derive_frame_key(bytes(range(1, 33)), "alpha")
+    with pytest.raises(ValueError):
+        derive_frame_key(b"too short", "alpha")
+    with pytest.raises(ValueError):
+        derive_frame_key(secret, "")
+    assert key_from_secret("s3cret", "alpha") == key_from_secret("s3cret", "alpha")
+    assert key_from_secret("s3cret", "alpha") != key_from_secret("s3cret ", "alpha")
+    assert key_from_secret("s3cret", "alpha") != key_from_secret("s3cret", "beta")
+
+
+def test_run_id_must_be_eight_bytes() -> None:
+    with pytest.raises(ValueError):
+        make_frame(run_id=b"short")
+    with pytest.raises(ValueError):
+        FrameDecoder(KEY, run_id=bytes(9))
 
 
 # -- drop reasons --------------------------------------------------------------------
@@ -250,9 +324,12 @@ def _drop_cases() -> list[tuple[DropReason, tuple[bytes, ...], Any]]:
         (DropReason.TOO_SHORT, (), b""),
         (DropReason.TOO_LONG, (), VALID + b"\x00"),
         (DropReason.BAD_MAGIC, (), craft(magic=b"WS")),
-        (DropReason.UNSUPPORTED_VERSION, (), craft(version=2)),
+        (DropReason.UNSUPPORTED_VERSION, (), craft(version=1)),
+        (DropReason.UNSUPPORTED_VERSION, (), craft(version=3)),
         (DropReason.UNSUPPORTED_VERSION, (), craft(version=0)),
         (DropReason.WRONG_SWARM, (), craft(swarm_hash=SWARM_HASH ^ 1)),
+        (DropReason.WRONG_RUN, (), craft(run_id=OTHER_RUN_ID)),
+        (DropReason.WRONG_RUN, (), craft(key=OTHER_KEY, run_id=bytes(8))),
         (DropReason.BAD_TAG, (), craft(key=OTHER_KEY)),
         (DropReason.BAD_TAG, (), VALID[:-16] + bytes(16)),
         (DropReason.UNKNOWN_ROLE, (), craft(role=2)),
@@ -343,7 +420,7 @@ def test_frame_signed_with_another_key_is_rejected() -> None:
 
 
 def test_single_flipped_bit_anywhere_is_rejected() -> None:
-    decoder = new_decoder(swarm_hash=None)
+    decoder = new_decoder(swarm_hash=None, run_id=None)
     flips = 0
     for bit in range(FRAME_BYTES * 8):
         mutated = bytearray(VALID)
@@ -351,7 +428,7 @@ def test_single_flipped_bit_anywhere_is_rejected() -> None:
         assert decoder.decode(bytes(mutated), NOW_NS) is None, f"bit {bit} not detected"
         flips += 1
     assert decoder.counters.accepted == 0
-    assert decoder.counters.total == flips == 704
+    assert decoder.counters.total == flips == 768
     assert set(k for k, v in decoder.counters.dropped.items() if v) <= {
         DropReason.BAD_MAGIC,
         DropReason.UNSUPPORTED_VERSION,
@@ -415,14 +492,38 @@ def test_senders_have_independent_sequences() -> None:
     assert decoder.tracked_senders == 2
 
 
-def test_rebooted_sender_is_heard_again_once_its_last_frame_has_aged_out() -> None:
+def test_rebooted_sender_restarting_its_sequence_from_zero_is_heard_at_once() -> None:
     decoder = new_decoder()
     assert decoder.decode(craft(sequence=900, timestamp_ns=NOW_NS), NOW_NS) is not None
     later_ns = NOW_NS + SECOND_NS // 2
+    assert decoder.decode(craft(sequence=0, timestamp_ns=later_ns), later_ns) is not None
     assert decoder.decode(craft(sequence=0, timestamp_ns=later_ns), later_ns) is None
+    assert decoder.last_drop_reason is DropReason.DUPLICATE
+    assert decoder.decode(craft(sequence=1, timestamp_ns=later_ns + 1), later_ns) is not None
+    assert decoder.windows_of(1) == 2
     much_later_ns = NOW_NS + 2 * SECOND_NS
-    assert decoder.decode(craft(sequence=0, timestamp_ns=much_later_ns), much_later_ns) is not None
-    assert decoder.decode(craft(sequence=0, timestamp_ns=much_later_ns), much_later_ns) is None
+    assert decoder.decode(craft(sequence=2, timestamp_ns=much_later_ns), much_later_ns)
+    assert decoder.windows_of(1) == 1  # the window of the old boot aged out
+
+
+def test_replayed_old_frame_behind_every_window_is_out_of_order() -> None:
+    decoder = new_decoder()
+    old = craft(sequence=10, timestamp_ns=NOW_NS)
+    assert decoder.decode(old, NOW_NS) is not None
+    for step in range(1, 200):  # 200 frames at 2 ms: the old one is far behind the window
+        now_ns = NOW_NS + step * 2_000_000
+        assert decoder.decode(craft(sequence=10 + step, timestamp_ns=now_ns), now_ns)
+    assert decoder.decode(old, NOW_NS + 400_000_000) is None
+    assert decoder.last_drop_reason is DropReason.OUT_OF_ORDER
+
+
+def test_windows_per_sender_are_bounded() -> None:
+    decoder = new_decoder()
+    for jump in range(10):
+        now_ns = NOW_NS + jump
+        frame = craft(sequence=(jump * 2**28) % 2**32, timestamp_ns=now_ns)
+        assert decoder.decode(frame, now_ns) is not None
+    assert decoder.windows_of(1) == frames.MAX_WINDOWS_PER_SENDER
 
 
 def test_replay_of_an_old_frame_after_the_sender_went_silent_is_stale() -> None:
@@ -455,6 +556,160 @@ def test_sequence_state_is_bounded_by_the_sender_id_space() -> None:
     assert decoder.tracked_senders <= 0x1_0000
 
 
+# -- attacks: counted, goal 0 accepted --------------------------------------------------
+
+HISTORY_SECRETS = (
+    # robot_firmware/runtime.py's DEV_SWARM_SECRET and docker-compose.yml's SWARM_KEY default,
+    # public in the repository's history (git log -p -S SWARM_KEY).
+    "swarm-cps development key: set SWARM_KEY",
+    "swarm-cps compose development key, set SWARM_KEY",
+)
+SWARM = "lab"
+BROADCAST_PERIOD_NS = 50_000_000
+
+
+def _history_keys() -> list[bytes]:
+    """Every key an outsider can derive from a secret in the history: the old derivation
+    (SHA-256 of the text), the new one on the text, and HKDF of the old key."""
+    keys = []
+    for secret in HISTORY_SECRETS:
+        old_key = hashlib.sha256(secret.encode("utf-8")).digest()
+        keys += [old_key, key_from_secret(secret, SWARM), derive_frame_key(old_key, SWARM)]
+    return keys
+
+
+def _run_decoder(secret: bytes, run_id: bytes) -> FrameDecoder:
+    return FrameDecoder(
+        derive_frame_key(secret, SWARM),
+        own_id=OWN_ID,
+        swarm_hash=swarm_hash_from_name(SWARM),
+        run_id=run_id,
+    )
+
+
+def _broadcast(key: bytes, run_id: bytes, sequence: int, now_ns: int, **fields: Any) -> bytes:
+    frame = make_frame(
+        swarm_hash=swarm_hash_from_name(SWARM),
+        run_id=run_id,
+        sequence=sequence % 2**32,
+        timestamp_ns=now_ns,
+        **fields,
+    )
+    return encode(frame, key)
+
+
+def test_frames_signed_with_keys_from_the_repository_history_are_never_accepted() -> None:
+    run_id = secrets.token_bytes(8)
+    decoder = _run_decoder(secrets.token_bytes(32), run_id)
+    attempts = 0
+    for key in _history_keys():
+        for step in range(20):
+            now_ns = NOW_NS + step * BROADCAST_PERIOD_NS
+            for sender_id in (0, 1, 2):
+                decoder.decode(
+                    _broadcast(key, run_id, 1000 + step, now_ns, sender_id=sender_id), now_ns
+                )
+                attempts += 1
+    print(
+        f"\nhistory keys: {attempts} frames signed with {len(_history_keys())} keys, "
+        f"{decoder.counters.accepted} accepted, {decoder.counters.dropped[DropReason.BAD_TAG]} "
+        "dropped as bad_tag"
+    )
+    assert attempts == 6 * 20 * 3
+    assert decoder.counters.accepted == 0
+    assert decoder.counters.dropped[DropReason.BAD_TAG] == attempts
+
+
+def test_frames_recorded_in_a_previous_run_are_never_accepted_in_the_next() -> None:
+    # Worst case: the same secret in both runs (a user-provided key); only the run id differs.
+    # Simulation time starts at 0 in both, so the recording's times look fresh.
+    secret = secrets.token_bytes(32)
+    key = derive_frame_key(secret, SWARM)
+    first_run, next_run = secrets.token_bytes(8), secrets.token_bytes(8)
+    recording = [
+        (now_ns, _broadcast(key, first_run, initial_sequence(0) + step, now_ns))
+        for step in range(200)
+        for now_ns in [step * BROADCAST_PERIOD_NS]
+    ]
+    decoder = _run_decoder(secret, next_run)
+    for now_ns, data in recording:
+        decoder.decode(data, now_ns)
+    print(
+        f"\nprevious run: {len(recording)} recorded frames replayed, "
+        f"{decoder.counters.accepted} accepted, {decoder.counters.dropped[DropReason.WRONG_RUN]} "
+        "dropped as wrong_run"
+    )
+    assert decoder.counters.accepted == 0
+    assert decoder.counters.dropped[DropReason.WRONG_RUN] == len(recording)
+    # The same frames are accepted in their own run: the test would see a broken replay check.
+    own = _run_decoder(secret, first_run)
+    assert all(own.decode(data, now_ns) is not None for now_ns, data in recording)
+
+
+@pytest.mark.parametrize("forged_ahead_ns", [0, DEFAULT_MAX_FUTURE_NS])
+def test_a_far_ahead_sequence_does_not_lock_the_real_sender_out(forged_ahead_ns: int) -> None:
+    secret = secrets.token_bytes(32)
+    key = derive_frame_key(secret, SWARM)
+    run_id = secrets.token_bytes(8)
+    decoder = _run_decoder(secret, run_id)
+    real = 5_000
+    t_ns = NOW_NS
+    for _ in range(20):
+        assert decoder.decode(_broadcast(key, run_id, real, t_ns), t_ns) is not None
+        real += 1
+        t_ns += BROADCAST_PERIOD_NS
+    # One authentic frame (an insider, or a replay) far ahead: sequence real + 2**31 - 1.
+    forged = _broadcast(key, run_id, real + 2**31 - 1, t_ns + forged_ahead_ns)
+    forged_accepted = decoder.decode(forged, t_ns) is not None
+    forged_at_ns = t_ns
+    first_heard_ns = None
+    attempts = accepted = 0
+    for _ in range(40):  # the real sender goes on at 20 Hz for 2 s
+        t_ns += BROADCAST_PERIOD_NS
+        attempts += 1
+        if decoder.decode(_broadcast(key, run_id, real, t_ns), t_ns) is not None:
+            accepted += 1
+            first_heard_ns = t_ns if first_heard_ns is None else first_heard_ns
+        real += 1
+    assert first_heard_ns is not None
+    locked_out_s = (first_heard_ns - forged_at_ns) / SECOND_NS
+    print(
+        f"\nfar-ahead forgery (timestamp +{forged_ahead_ns / SECOND_NS:.0f} s): forged frame "
+        f"accepted={forged_accepted}; real sender heard again after {locked_out_s:.2f} s, "
+        f"{accepted} of its next {attempts} frames accepted"
+    )
+    assert locked_out_s <= 1.0
+    assert accepted == attempts
+    # The forged frame replayed again is a duplicate, not a second window.
+    assert decoder.decode(forged, t_ns) is None
+    assert decoder.last_drop_reason in (DropReason.DUPLICATE, DropReason.STALE)
+
+
+def test_rebooted_sender_is_heard_again_after_a_far_ahead_forgery() -> None:
+    secret = secrets.token_bytes(32)
+    key = derive_frame_key(secret, SWARM)
+    run_id = secrets.token_bytes(8)
+    decoder = _run_decoder(secret, run_id)
+    t_ns = NOW_NS
+    assert decoder.decode(_broadcast(key, run_id, 7, t_ns), t_ns) is not None
+    decoder.decode(_broadcast(key, run_id, 7 + 2**31 - 1, t_ns + SECOND_NS), t_ns)
+    reboot_ns = t_ns + 100_000_000
+    sequence = initial_sequence(reboot_ns)
+    heard_ns = None
+    for step in range(60):
+        now_ns = reboot_ns + step * BROADCAST_PERIOD_NS
+        if decoder.decode(_broadcast(key, run_id, sequence + step, now_ns), now_ns) is not None:
+            heard_ns = now_ns
+            break
+    assert heard_ns is not None
+    assert heard_ns - t_ns <= SECOND_NS + BROADCAST_PERIOD_NS
+
+
+def test_claimed_sender_is_read_without_the_key() -> None:
+    assert frames.claimed_sender(encode(make_frame(sender_id=513), OTHER_KEY)) == 513
+    assert frames.claimed_sender(b"SW\x02\x00\x07") is None
+
+
 # -- fuzzing -------------------------------------------------------------------------
 
 any_now_ns = st.one_of(
@@ -475,7 +730,7 @@ def _assert_bookkeeping(decoder: FrameDecoder, fed: int, returned: int) -> None:
     data=st.one_of(
         st.binary(min_size=0, max_size=200),
         st.binary(min_size=FRAME_BYTES - 3, max_size=FRAME_BYTES - 3).map(
-            lambda tail: b"SW\x01" + tail
+            lambda tail: b"SW\x02" + tail
         ),
     ),
     now_ns=any_now_ns,
@@ -493,7 +748,7 @@ BODY_LAYOUT = [
     (name, fmt)
     for name, fmt in zip(
         BODY_FIELDS,
-        ("2s", "B", "B", "H", "H", "I", "Q", "d", "d", "d", "d", "d", "d", "I"),
+        ("2s", "B", "B", "H", "H", "8s", "I", "Q", "d", "d", "d", "d", "d", "d", "I"),
         strict=True,
     )
 ]
@@ -507,12 +762,14 @@ _wide_floats = st.one_of(
 def _field_values(name: str, fmt: str) -> st.SearchStrategy[Any]:
     if fmt == "2s":
         return st.one_of(st.just(b"SW"), st.binary(min_size=2, max_size=2))
+    if fmt == "8s":
+        return st.one_of(st.just(RUN_ID), st.binary(min_size=8, max_size=8))
     if fmt == "d":
         return _wide_floats
     bits = struct.calcsize("<" + fmt) * 8
     special = {
         "role": [0, 1, 2],
-        "version": [1, 0, 2],
+        "version": [2, 1, 3],
         "sender_id": [OWN_ID, 1, 2],
         "swarm_hash": [SWARM_HASH],
         "sequence": [99, 100, 101, 0, 0xFFFF_FFFF],

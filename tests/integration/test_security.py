@@ -1,0 +1,292 @@
+"""Attacks on a running swarm (`swarm up --lockstep` on loopback) by clients that are not the
+operator: none may connect without credentials, and with another identity's credentials none
+may write, steer, serve, ask, jam or kill anything beyond what that identity is allowed.
+
+Every attempt is counted, and so is every attempt that got through, as the swarm shows it:
+an operator tap subscribed to every key of the swarm counts the attacker's marker payloads
+that reached anyone, the world's radio profile, robot1's scratch register and the processes
+are read back through the operator, and robot1's inbox (`radio/rx/robot1`) is watched for
+frames the attacker signed. Goal: 0 accepted. The counts are printed (pytest -s).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+import time
+from collections import Counter
+
+import pytest
+import zenoh
+
+from robot_firmware.net.frames import (
+    FRAME_BYTES,
+    RadioFrame,
+    Role,
+    derive_frame_key,
+    encode,
+    initial_sequence,
+    swarm_hash_from_name,
+)
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.session import client_config
+from swarm_config.credentials import ProcessCredentials, read_credentials
+from tests.integration.conftest import LiveSwarm
+
+pytestmark = pytest.mark.slow
+
+SWARM = "lab"
+KEYS = SwarmKeys(SWARM)
+MARKERS = {"robot2": b"ATTACK-robot2-7f3a", "dashboard": b"ATTACK-dashboard-7f3a"}
+MARKER_X_M = 777.25
+"""Frames the attacker signs carry this x: robot1's inbox is searched for it."""
+SCRATCH = 0xFF200010
+CONNECT_TIMEOUT_MS = 3000
+
+
+def _credentials(live: LiveSwarm, identity: str) -> ProcessCredentials:
+    return read_credentials(live.out / "credentials" / f"{identity}.json")
+
+
+def _open(live: LiveSwarm, credentials: ProcessCredentials | None, **login: str) -> zenoh.Session:
+    """A plain client of the swarm's router, failing fast instead of waiting for it."""
+    config = client_config([live.endpoint], None, credentials)
+    if login:
+        config.insert_json5("transport/auth/usrpwd", json.dumps(login))
+    config.insert_json5("connect/timeout_ms", json.dumps(CONNECT_TIMEOUT_MS))
+    return zenoh.open(config)
+
+
+class Tap:
+    """The operator's view of every key of the swarm: whose marker reached which key, and
+    the attacker's frames that reached robot1's inbox."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.markers: Counter[tuple[str, str]] = Counter()
+        self.inbox_marked_frames = 0
+
+    def on_sample(self, sample: zenoh.Sample) -> None:  # zenoh callback: count and return
+        key = str(sample.key_expr)
+        data = sample.payload.to_bytes()
+        with self._lock:
+            for who, marker in MARKERS.items():
+                if marker in data:
+                    self.markers[(who, key)] += 1
+            inbox = key == KEYS.radio_rx("robot1") and len(data) == FRAME_BYTES
+            if inbox and struct.pack("<d", MARKER_X_M) in data:
+                self.inbox_marked_frames += 1
+
+    def count(self, who: str) -> int:
+        with self._lock:
+            return sum(n for (sender, _key), n in self.markers.items() if sender == who)
+
+
+def _signed_frame(secret: bytes, run_id: bytes, sender_id: int, now_ns: int) -> bytes:
+    frame = RadioFrame(
+        role=Role.LEADER,
+        sender_id=sender_id,
+        swarm_hash=swarm_hash_from_name(SWARM),
+        run_id=run_id,
+        sequence=initial_sequence(now_ns) + 2**20,
+        timestamp_ns=now_ns,
+        x_m=MARKER_X_M,
+        y_m=0.0,
+        theta_rad=0.0,
+        xdot_mps=0.0,
+        ydot_mps=0.0,
+        thetadot_radps=0.0,
+        localised=True,
+    )
+    return encode(frame, derive_frame_key(secret, SWARM))
+
+
+def _replies(session: zenoh.Session, key: str, payload: bytes | None = None) -> list[bytes]:
+    return [
+        bytes(reply.ok.payload.to_bytes())
+        for reply in session.get(key, payload=payload, timeout=2.0)
+        if reply.ok is not None
+    ]
+
+
+@pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "2")], indirect=True)
+def test_no_identity_but_the_operator_can_read_steer_jam_or_kill(live_swarm: LiveSwarm) -> None:
+    live = live_swarm
+    status = live.wait_for(
+        lambda: (
+            (s := live.admin("status")).get("ok")
+            and all(p["running"] for p in s["processes"].values())
+            and s
+        )
+    )
+    pids_before = {name: p["pid"] for name, p in status["processes"].items()}
+    live.wait_for(lambda: live.admin("net", "get").get("ok"))
+    profile_before = live.admin("net", "get")["profile"]
+    scratch_before = live.cli("regs", "robot1", hex(SCRATCH)).stdout.split()[-1]
+
+    attempts: Counter[str] = Counter()
+    accepted: Counter[str] = Counter()
+
+    # 1. Without credentials, or with a wrong password: no session at all.
+    for login in (
+        {},
+        {"user": "robot1", "password": "0" * 64},
+        {"user": "intruder", "password": "x"},
+    ):
+        attempts["connect without valid credentials"] += 1
+        try:
+            session = _open(live, None, **login)
+        except zenoh.ZError:
+            continue
+        accepted["connect without valid credentials"] += 1
+        session.close()
+
+    operator = _open(live, _credentials(live, "operator"))
+    tap = Tap()
+    operator.declare_subscriber(KEYS.everything, tap.on_sample)
+    robot2_creds = _credentials(live, "robot2")
+    robot2 = _open(live, robot2_creds)
+    dashboard = _open(live, _credentials(live, "dashboard"))
+    truth_seen = threading.Event()
+    dashboard.declare_subscriber(KEYS.truth, lambda _sample: truth_seen.set())
+    time.sleep(1.0)
+
+    # 2. robot2 writes robot1's and the world's keys (a put that passes reaches the tap).
+    others = [
+        KEYS.act("robot1"),
+        KEYS.radio_tx("robot1"),
+        KEYS.telemetry("robot1"),
+        KEYS.sense("robot1"),
+        KEYS.radio_rx("robot1"),
+        KEYS.clock,
+        KEYS.truth,
+        KEYS.admin("robot1", "regs"),
+    ]
+    for key in others:
+        for _ in range(5):
+            attempts["robot2 puts on keys not its own"] += 1
+            robot2.put(key, MARKERS["robot2"])
+    # 3. robot2 signs frames with the swarm key it holds, claiming to be robot1 and robot3,
+    #    on every way into robot1's inbox.
+    secret, run_id = robot2_creds.swarm_key_bytes(), robot2_creds.run_id_bytes
+    world_t_ns = int(live.wait_for(lambda: _world_t_ns(operator)))
+    for sender_id in (0, 2):
+        for key in (KEYS.radio_tx("robot2"), KEYS.radio_tx("robot1"), KEYS.radio_rx("robot1")):
+            for step in range(5):
+                attempts["robot2 frames signed as robot1 or robot3"] += 1
+                robot2.put(key, _signed_frame(secret, run_id, sender_id, world_t_ns + step))
+    # 4. robot2 serves admin verbs of robot1, the world and the launcher.
+    fakes = [
+        robot2.declare_queryable(
+            KEYS.admin(target, "*"), lambda q: q.reply(q.key_expr, MARKERS["robot2"])
+        )
+        for target in ("robot1", "world", "launcher")
+    ]
+    token = robot2.liveliness().declare_token(KEYS.alive("robot", "robot9"))
+    time.sleep(1.0)
+    for target, verb in (("robot1", "status"), ("world", "status"), ("launcher", "status")):
+        attempts["robot2 serves admin verbs"] += 1
+        accepted["robot2 serves admin verbs"] += sum(
+            MARKERS["robot2"] in reply for reply in _replies(operator, KEYS.admin(target, verb))
+        )
+    attempts["robot2 declares a token not its own"] += 1
+    accepted["robot2 declares a token not its own"] += sum(
+        "robot9" in str(reply.ok.key_expr)
+        for reply in operator.liveliness().get(KEYS.alive_all("robot"), timeout=2.0)
+        if reply.ok is not None
+    )
+    for fake in fakes:  # robot2's own session would answer its own queries locally
+        fake.undeclare()
+    token.undeclare()
+    # 5. robot2 and the dashboard ask the state-changing verbs (and the reads).
+    requests = [
+        (KEYS.admin("world", "net"), b'{"loss": 1.0}'),
+        (
+            KEYS.admin("robot1", "regs"),
+            json.dumps({"op": "write", "address": SCRATCH, "value": 0xBAD}).encode(),
+        ),
+        (
+            KEYS.admin("robot1", "params"),
+            b"error_centres: [-1.0, 0.0, 1.0]\nrate_centres: [-1.0, 1.0]\n",
+        ),
+        (KEYS.admin("launcher", "kill"), b'{"robot": "robot1"}'),
+        (KEYS.admin("launcher", "restart"), b'{"robot": "robot3"}'),
+        (KEYS.admin("robot1", "status"), None),
+        (KEYS.admin("launcher", "status"), None),
+    ]
+    for who, session in (("robot2", robot2), ("dashboard", dashboard)):
+        for key, body in requests:
+            attempts[f"{who} asks admin verbs"] += 1
+            accepted[f"{who} asks admin verbs"] += len(_replies(session, key, body))
+    # 6. The dashboard may read but not write.
+    for key in (KEYS.truth, KEYS.clock, KEYS.act("robot1"), KEYS.radio_rx("robot1")):
+        for _ in range(5):
+            attempts["dashboard puts"] += 1
+            dashboard.put(key, MARKERS["dashboard"])
+    time.sleep(2.0)
+
+    accepted["robot2 puts on keys not its own"] = tap.count("robot2")
+    accepted["dashboard puts"] = tap.count("dashboard")
+    accepted["robot2 frames signed as robot1 or robot3"] = tap.inbox_marked_frames
+    markers = dict(tap.markers)
+    for session in (robot2, dashboard):
+        session.close()
+    operator.close()
+
+    # What the swarm shows afterwards, through the operator.
+    after = live.admin("status")
+    pids_after = {name: p["pid"] for name, p in after["processes"].items()}
+    profile_after = live.admin("net", "get")["profile"]
+    scratch_after = live.cli("regs", "robot1", hex(SCRATCH)).stdout.split()[-1]
+    print("\nattacks on a live swarm (attempts, accepted):")
+    for what in attempts:
+        print(f"  {what:<45} {attempts[what]:>4} {accepted[what]:>4}")
+    print(
+        f"  dashboard read truth: {truth_seen.is_set()}; processes unchanged: "
+        f"{pids_after == pids_before}; radio profile unchanged: {profile_after == profile_before}; "
+        f"robot1 scratch register {scratch_before} -> {scratch_after}; markers seen: {markers}"
+    )
+    assert sum(attempts.values()) > 100
+    assert sum(accepted.values()) == 0, accepted
+    assert markers == {}
+    assert truth_seen.is_set()
+    assert pids_after == pids_before and all(p["running"] for p in after["processes"].values())
+    assert profile_after == profile_before
+    assert scratch_after == scratch_before
+
+
+def _world_t_ns(operator: zenoh.Session) -> float | None:
+    replies = _replies(operator, KEYS.admin("world", "status"))
+    if not replies:
+        return None
+    status = json.loads(replies[0])
+    t_s = status.get("t_s")
+    return None if t_s is None else float(t_s) * 1e9 + 1
+
+
+def test_operator_tap_would_see_a_marker(live_swarm: LiveSwarm) -> None:
+    """The observer itself works: a put an identity may make reaches the operator's tap."""
+    live = live_swarm
+    live.wait_for(lambda: live.admin("status").get("ok"))
+    listener = _open(live, _credentials(live, "operator"))
+    tap = Tap()
+    listener.declare_subscriber(KEYS.everything, tap.on_sample)
+    time.sleep(1.0)
+    credentials = _credentials(live, "robot2")
+    robot2 = _open(live, credentials)
+    for _ in range(5):
+        robot2.put(KEYS.telemetry("robot2"), MARKERS["robot2"])  # its own key: allowed
+    world_t_ns = int(live.wait_for(lambda: _world_t_ns(listener)))
+    secret, run_id = credentials.swarm_key_bytes(), credentials.run_id_bytes
+    for step in range(5):  # frames robot2 signs as itself (index 1) reach robot1's inbox
+        robot2.put(KEYS.radio_tx("robot2"), _signed_frame(secret, run_id, 1, world_t_ns + step))
+    time.sleep(1.0)
+    robot2.close()
+    listener.close()
+    print(
+        f"\ncontrol: robot2's own telemetry key carried {tap.count('robot2')} marker samples, "
+        f"robot1's inbox {tap.inbox_marked_frames} of 5 frames robot2 signed as itself"
+    )
+    assert tap.markers[("robot2", KEYS.telemetry("robot2"))] == 5
+    assert tap.inbox_marked_frames >= 1
