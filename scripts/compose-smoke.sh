@@ -651,12 +651,11 @@ container_of() { compose ps -aq "$1"; }
 
 up_stack() {
     step "docker compose up"
-    export SWARM_PORT SWARM_WEB_PORT SWARM_GRPC_PORT SWARM_RUNS_DIR SWARM_KEY
+    export SWARM_PORT SWARM_WEB_PORT SWARM_GRPC_PORT SWARM_RUNS_DIR SWARM_CREDENTIALS_FILE
     SWARM_PORT="$(host_chore port)"
     SWARM_WEB_PORT="$(host_chore port)"
     SWARM_GRPC_PORT="$(host_chore port)"
     SWARM_RUNS_DIR="$TMP/runs"
-    SWARM_KEY="smoke-$(od -An -N8 -tx1 /dev/urandom | tr -d ' \n')"
     mkdir -p "$SWARM_RUNS_DIR"
     # The dashboard is started when this checkout's `swarm` has the command.
     local commands
@@ -672,6 +671,11 @@ up_stack() {
     fi
     STACK_UP=1
     indented compose up -d --no-build "${SERVICES[@]}" || fail "docker compose up"
+    # The host's checks and `swarm` commands talk to the swarm as its operator.
+    SWARM_CREDENTIALS_FILE="$SWARM_RUNS_DIR/operator.json"
+    compose cp router:/credentials/operator.json "$SWARM_CREDENTIALS_FILE" \
+        || fail "copy the operator's credentials out of the stack"
+    chmod 600 "$SWARM_CREDENTIALS_FILE"
     note "('IPv4 forwarding is disabled' is expected with --ip-forward=false: the containers"
     note " still reach each other on the compose network, and the published ports work)"
     note "router published on 127.0.0.1:$SWARM_PORT; services up: ${SERVICES[*]}"
