@@ -290,3 +290,39 @@ def test_operator_tap_would_see_a_marker(live_swarm: LiveSwarm) -> None:
     )
     assert tap.markers[("robot2", KEYS.telemetry("robot2"))] == 5
     assert tap.inbox_marked_frames >= 1
+
+
+def test_no_secret_in_logs_summary_status_or_telemetry(live_swarm: LiveSwarm) -> None:
+    live = live_swarm
+    live.wait_for(lambda: live.admin("status").get("ok"))
+    live.wait_for(lambda: (live.out / "summary.json").exists(), 60)
+    secrets = set()
+    for path in (live.out / "credentials").glob("*.json"):
+        data = json.loads(path.read_text())
+        secrets.add(data["password"])
+        if "swarm_key" in data:
+            secrets.add(data["swarm_key"])
+    operator = _open(live, _credentials(live, "operator"))
+    telemetry: list[bytes] = []
+    operator.declare_subscriber(
+        KEYS.telemetry_all, lambda sample: telemetry.append(sample.payload.to_bytes())
+    )
+    replies = [
+        reply
+        for target in ("launcher", "world", "robot1", "robot2", "robot3")
+        for reply in _replies(operator, KEYS.admin(target, "status"))
+    ]
+    live.wait_for(lambda: len(telemetry) >= 10, 30)
+    operator.close()
+    texts = {
+        "summary.json": (live.out / "summary.json").read_bytes(),
+        "status replies": b"\n".join(replies),
+        "telemetry": b"\n".join(telemetry[:200]),
+        "swarm status": live.cli("status").stdout.encode(),
+    }
+    texts |= {f"logs/{p.name}": p.read_bytes() for p in (live.out / "logs").glob("*.log")}
+    found = {name: sum(s.encode() in text for s in secrets) for name, text in texts.items()}
+    print(f"\nsecrets ({len(secrets)}) found in: {found}")
+    assert len(secrets) == 8 + 1  # a password per identity, and the robots' shared key
+    assert len(replies) == 5
+    assert all(count == 0 for count in found.values()), found
