@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -27,14 +25,13 @@ from pathlib import Path
 
 import numpy as np
 from machine import machine_lines
+from proc_stats import CpuWindow
+from swarm_up import SwarmUp, free_port
 
-from robot_firmware.net.admin import admin_request
 from robot_firmware.net.keys import SwarmKeys
-from robot_firmware.net.messages import LauncherStatusReply, WorldStatusReply
 from robot_firmware.net.session import open_client
 from services.router.access import router_config_document
 from swarm_config.credentials import (
-    CREDENTIALS_FILE_ENV,
     generate_credential_set,
     read_credentials,
     write_credential_set,
@@ -42,106 +39,35 @@ from swarm_config.credentials import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _start(out: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "services.cli.main",
-            "up",
-            "--no-dashboard",
-            "--out",
-            str(out),
-            "--port",
-            str(port),
-            *args,
-        ],
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    # The bench asks the swarm as its operator, with the credentials `swarm up` makes.
-    operator = out / "credentials" / "operator.json"
-    deadline = time.monotonic() + 60.0
-    while not operator.exists() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    os.environ[CREDENTIALS_FILE_ENV] = str(operator)
-    return process
-
-
-def _world_status(port: int) -> WorldStatusReply | None:
-    reply = admin_request(
-        "lab", f"tcp/127.0.0.1:{port}", "world", "status", WorldStatusReply, timeout_s=2.0
-    )
-    return reply if isinstance(reply, WorldStatusReply) else None
-
-
-def _wait_ticking(port: int, timeout_s: float = 60.0) -> WorldStatusReply:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        status = _world_status(port)
-        if status is not None and status.tick > 50:
-            return status
-        time.sleep(0.5)
-    raise RuntimeError("the swarm did not start")
-
-
-def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 def lockstep_speedup(window_s: float) -> float:
-    port = _port()
-    with tempfile.TemporaryDirectory() as out:
-        process = _start(Path(out), port, "--lockstep")
-        try:
-            first = _wait_ticking(port)
-            t0 = time.monotonic()
-            time.sleep(window_s)
-            second = _world_status(port)
-            wall = time.monotonic() - t0
-            assert second is not None
-            return (second.t_s - first.t_s) / wall
-        finally:
-            process.terminate()
-            process.wait(timeout=30)
-
-
-def realtime_run() -> tuple[dict, dict[str, float]]:
-    port = _port()
-    with tempfile.TemporaryDirectory() as out:
-        process = _start(Path(out), port, "--duration", "32")
-        _wait_ticking(port)
-        status = admin_request(
-            "lab", f"tcp/127.0.0.1:{port}", "launcher", "status", LauncherStatusReply, timeout_s=2.0
-        )
-        assert isinstance(status, LauncherStatusReply)
-        pids = {n: p.pid for n, p in status.processes.items() if p.pid}
-        before = {n: _cpu_seconds(pid) for n, pid in pids.items()}
+    with tempfile.TemporaryDirectory() as out, SwarmUp(Path(out), "--lockstep") as up:
+        first = up.wait_ticking()
         t0 = time.monotonic()
-        time.sleep(10.0)
-        cpu = {
-            n: 100.0 * (_cpu_seconds(pid) - before[n]) / (time.monotonic() - t0)
-            for n, pid in pids.items()
-        }
-        process.wait(timeout=120)
-        summary = json.loads((Path(out) / "summary.json").read_text())
-    return summary["control_timing"], cpu
+        time.sleep(window_s)
+        second = up.world_status()
+        wall = time.monotonic() - t0
+        assert second is not None
+        return (second.t_s - first.t_s) / wall
+
+
+def realtime_run() -> tuple[dict, dict[str, float | None]]:
+    with tempfile.TemporaryDirectory() as out:
+        with SwarmUp(Path(out), "--duration", "32") as up:
+            up.wait_ticking()
+            cpu = CpuWindow(up.pids())
+            time.sleep(10.0)
+            percent = cpu.percent()
+            up.wait(timeout_s=120)
+        summary = up.summary()
+        assert summary is not None
+    return summary["control_timing"], percent
 
 
 def one_hop_latency_ms(samples: int) -> tuple[list[float], list[float]]:
     """Radio hop through the world (ideal profile) and raw ping-pong through the router."""
-    port = _port()
+    port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = SwarmKeys("lab")
     # Logins as in a run, but no access control: the bench itself plays robot1 and robot2
@@ -254,7 +180,8 @@ def main() -> None:
     print()
     print(f"{'process':<8} {'CPU % of one core':>18}")
     for name in cpus[0]:
-        print(f"{name:<8} {statistics.median(c[name] for c in cpus):>18.1f}")
+        values = [c[name] for c in cpus if c.get(name) is not None]
+        print(f"{name:<8} {statistics.median(values) if values else float('nan'):>18.1f}")
     print()
     radio, raw = one_hop_latency_ms(args.samples)
     print(f"{'path (ideal profile)':<42} {'p50 ms':>7} {'p99 ms':>7} {'n':>5}")
