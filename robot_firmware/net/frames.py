@@ -5,13 +5,13 @@ world's radio medium forwards it as opaque bytes; only robots encode and decode 
 Nothing here opens a socket, reads a clock or reads the environment: time comes in as
 `now_ns` (simulation nanoseconds), the key and the run id as bytes from the caller.
 
-Layout, version 2 (`FRAME_FORMAT`, little-endian, no padding, 96 bytes):
+Layout, version 3 (`FRAME_FORMAT`, little-endian, no padding, 100 bytes):
 
 | offset | bytes | struct | field            | meaning                                        |
 |-------:|------:|--------|------------------|------------------------------------------------|
 |      0 |     2 | 2s     | magic            | b"SW"                                          |
-|      2 |     1 | B      | version          | 2                                              |
-|      3 |     1 | B      | role             | 0 follower, 1 leader                           |
+|      2 |     1 | B      | version          | 3                                              |
+|      3 |     1 | B      | role             | 0 follower, 1 acting leader                    |
 |      4 |     2 | H      | sender_id        | robot index of the sender                      |
 |      6 |     2 | H      | swarm_hash       | first two bytes of SHA-256 of the swarm name   |
 |      8 |     8 | 8s     | run_id           | random id of the run the frame belongs to      |
@@ -24,10 +24,16 @@ Layout, version 2 (`FRAME_FORMAT`, little-endian, no padding, 96 bytes):
 |     60 |     8 | d      | ydot_mps         | velocity y, metres per second                  |
 |     68 |     8 | d      | thetadot_radps   | turn rate, radians per second                  |
 |     76 |     4 | I      | flags            | bit 0 localised; bits 1..31 reserved, zero     |
-|     80 |    16 | 16s    | tag              | HMAC-SHA256 of bytes 0..79, first 16 bytes     |
+|     80 |     4 | I      | term             | leader term the sender is in (DESIGN.md §7.1)  |
+|     84 |    16 | 16s    | tag              | HMAC-SHA256 of bytes 0..83, first 16 bytes     |
 
-`BODY_FORMAT` covers bytes 0..79 (the authenticated part); `FRAME_FORMAT` adds the tag.
-Version 1 (88 bytes, no run id) is no longer accepted.
+`BODY_FORMAT` covers bytes 0..83 (the authenticated part); `FRAME_FORMAT` adds the tag.
+Version 1 (88 bytes, no run id) and version 2 (96 bytes, no term) are no longer accepted.
+
+Term: the leader term (epoch) the sender knows, authenticated with the rest of the body.
+A frame whose role is leader is a claim to lead in that term; the highest term wins and ties
+go to the lowest sender index (robot_firmware/leadership.py). The codec only carries it: any
+value 0..2**32 - 1 is valid content.
 
 Key: `derive_frame_key` turns the swarm's secret (32 random bytes made per run by `swarm up`,
 read from the robot's credentials file, swarm_config/credentials.py) into the HMAC key with
@@ -89,11 +95,11 @@ import struct
 from dataclasses import dataclass, field
 
 MAGIC = b"SW"
-VERSION = 2
+VERSION = 3
 
-BODY_FORMAT = "<2sBBHH8sIQ6dI"
+BODY_FORMAT = "<2sBBHH8sIQ6dII"
 """Authenticated part: magic, version, role, sender, swarm, run, sequence, time, pose, rate,
-flags."""
+flags, term."""
 TAG_BYTES = 16
 FRAME_FORMAT = f"{BODY_FORMAT}{TAG_BYTES}s"
 """Whole frame: `BODY_FORMAT` followed by the truncated HMAC-SHA256 tag."""
@@ -143,6 +149,7 @@ _INT_FIELDS: tuple[tuple[str, int], ...] = (
     ("swarm_hash", U16_MAX),
     ("sequence", U32_MAX),
     ("timestamp_ns", U64_MAX),
+    ("term", U32_MAX),
 )
 _FLOAT_FIELDS = ("x_m", "y_m", "theta_rad", "xdot_mps", "ydot_mps", "thetadot_radps")
 
@@ -201,6 +208,7 @@ class RadioFrame:
     localised: bool
     swarm_hash: int = 0
     run_id: bytes = NO_RUN_ID
+    term: int = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "role", Role(self.role))
@@ -315,6 +323,7 @@ def encode(frame: RadioFrame, key: bytes) -> bytes:
         frame.ydot_mps,
         frame.thetadot_radps,
         frame.flags,
+        frame.term,
     )
     return body + frame_tag(body, key)
 
@@ -561,6 +570,7 @@ def _parse(
         ydot_mps,
         thetadot_radps,
         flags,
+        term,
         tag,
     ) = FRAME_STRUCT.unpack(raw)
     if magic != MAGIC:
@@ -591,6 +601,7 @@ def _parse(
         ydot_mps=ydot_mps,
         thetadot_radps=thetadot_radps,
         localised=bool(flags & FLAG_LOCALISED),
+        term=term,
     )
     problem = content_problem(frame)
     return frame if problem is None else problem

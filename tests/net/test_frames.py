@@ -64,6 +64,7 @@ BODY_FIELDS = (
     "ydot_mps",
     "thetadot_radps",
     "flags",
+    "term",
 )
 
 
@@ -82,6 +83,7 @@ def make_frame(**overrides: Any) -> RadioFrame:
         "ydot_mps": 0.52,
         "thetadot_radps": 0.1,
         "localised": True,
+        "term": 4,
     }
     fields.update(overrides)
     return RadioFrame(**fields)
@@ -104,6 +106,7 @@ def body_fields(frame: RadioFrame) -> dict[str, Any]:
         "ydot_mps": frame.ydot_mps,
         "thetadot_radps": frame.thetadot_radps,
         "flags": frame.flags,
+        "term": frame.term,
     }
 
 
@@ -144,7 +147,7 @@ def test_documented_layout_table_matches_the_struct_formats() -> None:
         assert int(row_bytes) == struct.calcsize("<" + row_format)
         offset += int(row_bytes)
         formats.append(row_format)
-    assert offset == FRAME_BYTES == 96
+    assert offset == FRAME_BYTES == 100
     assert struct.calcsize("<" + "".join(formats)) == struct.calcsize(FRAME_FORMAT)
     names = {name for *_, name in rows}
     frame_fields = {f.name for f in dataclasses.fields(RadioFrame)} - {"localised"}
@@ -164,9 +167,9 @@ def test_documented_layout_table_matches_the_struct_formats() -> None:
 )
 def test_round_trip_preserves_every_field(frame: RadioFrame) -> None:
     data = encode(frame, KEY)
-    assert len(data) == FRAME_BYTES == 96
+    assert len(data) == FRAME_BYTES == 100
     assert data[:2] == b"SW"
-    assert data[2] == 2
+    assert data[2] == 3
     assert data[8:16] == frame.run_id
 
     decoded = new_decoder(swarm_hash=frame.swarm_hash, run_id=frame.run_id).decode(data, NOW_NS)
@@ -325,7 +328,8 @@ def _drop_cases() -> list[tuple[DropReason, tuple[bytes, ...], Any]]:
         (DropReason.TOO_LONG, (), VALID + b"\x00"),
         (DropReason.BAD_MAGIC, (), craft(magic=b"WS")),
         (DropReason.UNSUPPORTED_VERSION, (), craft(version=1)),
-        (DropReason.UNSUPPORTED_VERSION, (), craft(version=3)),
+        (DropReason.UNSUPPORTED_VERSION, (), craft(version=2)),
+        (DropReason.UNSUPPORTED_VERSION, (), craft(version=4)),
         (DropReason.UNSUPPORTED_VERSION, (), craft(version=0)),
         (DropReason.WRONG_SWARM, (), craft(swarm_hash=SWARM_HASH ^ 1)),
         (DropReason.WRONG_RUN, (), craft(run_id=OTHER_RUN_ID)),
@@ -412,6 +416,42 @@ def test_limits_are_configurable() -> None:
 # -- authentication ------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("term", [0, 1, 7, 0xFFFF_FFFF])
+def test_term_survives_the_round_trip(term: int) -> None:
+    frame = make_frame(term=term)
+    data = encode(frame, KEY)
+    assert struct.unpack_from("<I", data, 80) == (term,)
+    decoded = new_decoder().decode(data, NOW_NS)
+    assert decoded is not None
+    assert decoded.term == term
+
+
+@pytest.mark.parametrize("term", [-1, 2**32])
+def test_term_outside_32_bits_is_refused(term: int) -> None:
+    with pytest.raises(ValueError, match="term"):
+        make_frame(term=term)
+
+
+def test_term_is_authenticated() -> None:
+    """Raising the term of a recorded frame (to take the lead) without the key fails."""
+    data = bytearray(encode(make_frame(term=3), KEY))
+    struct.pack_into("<I", data, 80, 4)
+    decoder = new_decoder()
+    assert decoder.decode(bytes(data), NOW_NS) is None
+    assert decoder.counters.dropped[DropReason.BAD_TAG] == 1
+    assert decoder.decode(encode(make_frame(term=4), KEY), NOW_NS) is not None
+
+
+def test_version_2_frame_without_a_term_is_refused() -> None:
+    v2_body = struct.pack(
+        "<2sBBHH8sIQ6dI", b"SW", 2, 1, 1, SWARM_HASH, RUN_ID, 100, NOW_NS, *(0.0,) * 6, 1
+    )
+    data = v2_body + frame_tag(v2_body, KEY)
+    decoder = new_decoder()
+    assert decoder.decode(data, NOW_NS) is None
+    assert decoder.last_drop_reason == DropReason.TOO_SHORT
+
+
 def test_frame_signed_with_another_key_is_rejected() -> None:
     decoder = new_decoder()
     assert decoder.decode(encode(make_frame(), OTHER_KEY), NOW_NS) is None
@@ -428,7 +468,7 @@ def test_single_flipped_bit_anywhere_is_rejected() -> None:
         assert decoder.decode(bytes(mutated), NOW_NS) is None, f"bit {bit} not detected"
         flips += 1
     assert decoder.counters.accepted == 0
-    assert decoder.counters.total == flips == 768
+    assert decoder.counters.total == flips == 800
     assert set(k for k, v in decoder.counters.dropped.items() if v) <= {
         DropReason.BAD_MAGIC,
         DropReason.UNSUPPORTED_VERSION,
@@ -748,7 +788,7 @@ BODY_LAYOUT = [
     (name, fmt)
     for name, fmt in zip(
         BODY_FIELDS,
-        ("2s", "B", "B", "H", "H", "8s", "I", "Q", "d", "d", "d", "d", "d", "d", "I"),
+        ("2s", "B", "B", "H", "H", "8s", "I", "Q", "d", "d", "d", "d", "d", "d", "I", "I"),
         strict=True,
     )
 ]
@@ -769,12 +809,13 @@ def _field_values(name: str, fmt: str) -> st.SearchStrategy[Any]:
     bits = struct.calcsize("<" + fmt) * 8
     special = {
         "role": [0, 1, 2],
-        "version": [2, 1, 3],
+        "version": [3, 2, 4],
         "sender_id": [OWN_ID, 1, 2],
         "swarm_hash": [SWARM_HASH],
         "sequence": [99, 100, 101, 0, 0xFFFF_FFFF],
         "timestamp_ns": [NOW_NS, NOW_NS - SECOND_NS - 1, NOW_NS + SECOND_NS + 1],
         "flags": [0, 1, 2],
+        "term": [0, 4, 5, 0xFFFF_FFFF],
     }[name]
     return st.one_of(st.sampled_from(special), st.integers(0, 2**bits - 1))
 
