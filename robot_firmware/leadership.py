@@ -1,0 +1,249 @@
+"""Who leads the formation: leader terms, failover and slots (DESIGN.md §7, §7.1 "Leader term").
+
+The paper's swarm has one fixed leader (§5); a swarm that loses it stops.  Here leadership is
+a term (epoch) number carried in every authenticated radio frame (robot_firmware/net/frames.py,
+field `term`) and a role bit: a frame with role leader claims to lead in its term.  This module
+is the rule, as a pure state machine: no zenoh, no clock (time is `t_s`, simulation seconds, an
+argument), so every transition is tested without a network (tests/test_leadership.py).
+
+Every robot knows its own index and the robots' names (so their count) from the scenario, and
+which robot the scenario names leader (the *designated* leader).  From the frames it accepts it
+keeps, per peer, when it last heard the peer, the peer's term and whether the peer claims to
+lead; the robot runtime may add that a peer's liveliness token is gone (or back).
+
+**Order of claims.**  A claim (term T, sender s) beats (T', s') when T > T', or T == T' and
+s < s' (the lower index wins a tie).  A robot always follows the best claim it has heard.
+
+**Live.**  A peer is live while it was heard within `leader_timeout_s` and its liveliness token
+is not known to be gone.  The robot itself is always live.
+
+**Leader lost.**  The leader a robot follows is lost when its token is gone, or when no claim of
+it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: its
+boot, the term's adoption, or its last claim).  While the leader is lost, the live robot with
+the lowest index (the lost leader excluded) raises the term to one above the highest it has
+seen and leads; the others wait for its claim.  If that candidate dies too it stops being live
+after the same timeout and the next one takes over, so a claim follows a death within about
+`leader_timeout_s` plus one broadcast period (0.5 s + 50 ms at the defaults).
+
+Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
+
+| state           | event                                            | next            | term    |
+|-----------------|--------------------------------------------------|-----------------|---------|
+| boot            | designated leader, boot at t < `start_window_s`  | LEADING         | 0       |
+| boot            | any other robot, or a later boot (a restart)     | FOLLOWING(d|-)  | 0       |
+| FOLLOWING(L)    | claim (T, s) that beats (term, L), or L None and | FOLLOWING(s)    | T       |
+|                 | T >= term                                        |                 |         |
+| FOLLOWING(L)    | claim of L in the current term                   | FOLLOWING(L)    | same    |
+| FOLLOWING(L)    | frame of L without a claim, current term         | FOLLOWING(None) | same    |
+| FOLLOWING/LEAD. | any frame with a term above ours, no claim       | FOLLOWING(None) | T       |
+| FOLLOWING(L)    | `update`: L lost, this robot lowest live index   | LEADING         | max + 1 |
+| FOLLOWING(L)    | `update`: L lost, a lower index is live          | FOLLOWING(None) | same    |
+| LEADING         | claim (T, s) that beats (term, self)             | FOLLOWING(s)    | T       |
+| LEADING         | claim that does not beat ours                    | LEADING         | same    |
+| any             | `resume` (after a sense gap / a freeze)          | FOLLOWING(None) | same    |
+
+d: the designated leader, expected in term 0.  A designated leader that boots later than
+`start_window_s` is a restart into a running swarm: it boots as a follower in term 0, adopts
+the term it hears and takes the vacated slot (below); it never claims term 0 again.  A robot
+partitioned from the rest that elected itself keeps its term only until it hears a claim that
+beats it (a higher term, or the same term from a lower index): then it follows, so two leaders
+never both act once they hear each other.
+
+**Slots.**  The scenario's slots are relative to the leader (eq. 17).  With robot L leading, a
+follower that has a scenario slot keeps it, relative to L; the designated leader, which has no
+slot of its own, takes L's slot (the slot L vacated).  So with robot2 leading, robot3 keeps its
+slot behind robot2 and a returning robot1 takes robot2's old slot; with the designated leader
+leading again every robot is back in its scenario slot (`slot_of`).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from pydantic import BaseModel, ConfigDict, PositiveFloat
+
+
+class LeadershipParams(BaseModel):
+    """Constants of the election rule."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    leader_timeout_s: PositiveFloat = 0.5
+    """A leader unheard for this long is lost: 10 broadcast periods at 20 Hz."""
+    start_window_s: PositiveFloat = 1.0
+    """Boots before this simulation time are the run's start: the designated leader leads
+    term 0 and the others expect it; a later boot is a restart into a running swarm."""
+
+
+class Phase(enum.Enum):
+    LEADING = "leading"
+    FOLLOWING = "following"
+
+
+@dataclass(slots=True)
+class PeerRecord:
+    """What one robot knows of a peer from its accepted frames and its liveliness token."""
+
+    last_heard_s: float = -math.inf
+    term: int = 0
+    claims_lead: bool = False
+    token_gone: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class LeaderChange:
+    """A change of who this robot follows or whether it leads (for logs and telemetry)."""
+
+    t_s: float
+    term: int
+    leader: int | None
+    reason: str
+
+
+def claim_beats(term: int, sender: int, other_term: int, other_sender: int) -> bool:
+    """Whether a claim to lead (term, sender) beats (other_term, other_sender)."""
+    return term > other_term or (term == other_term and sender < other_sender)
+
+
+@dataclass
+class Leadership:
+    """One robot's view of who leads (the table in the module docstring)."""
+
+    index: int
+    count: int
+    designated_leader: int
+    boot_s: float
+    params: LeadershipParams = field(default_factory=LeadershipParams)
+    term: int = field(init=False, default=0)
+    phase: Phase = field(init=False, default=Phase.FOLLOWING)
+    leader: int | None = field(init=False, default=None)
+    waiting_since_s: float = field(init=False)
+    """Since when the current leader has not been heard (boot, adoption or its last claim)."""
+    highest_term_seen: int = field(init=False, default=0)
+    peers: list[PeerRecord] = field(init=False)
+    changes: list[LeaderChange] = field(init=False, default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.index < self.count or not 0 <= self.designated_leader < self.count:
+            raise ValueError(
+                f"index {self.index} and designated leader {self.designated_leader} must be "
+                f"in 0..{self.count - 1}"
+            )
+        self.peers = [PeerRecord() for _ in range(self.count)]
+        self.waiting_since_s = self.boot_s
+        starting = self.boot_s < self.params.start_window_s
+        if self.index == self.designated_leader and starting:
+            self._set(Phase.LEADING, self.index, 0, self.boot_s, "designated leader at start")
+        elif starting:
+            self.leader = self.designated_leader
+
+    @property
+    def is_leader(self) -> bool:
+        return self.phase is Phase.LEADING
+
+    # -- inputs --------------------------------------------------------------------------
+
+    def hear(self, sender: int, term: int, claims_lead: bool, t_s: float) -> None:
+        """An accepted frame of `sender` (its term and role) at simulation time `t_s`."""
+        if sender == self.index or not 0 <= sender < self.count:
+            return
+        peer = self.peers[sender]
+        peer.last_heard_s = max(peer.last_heard_s, t_s)
+        peer.term = term
+        peer.claims_lead = claims_lead
+        self.highest_term_seen = max(self.highest_term_seen, term)
+        if claims_lead:
+            self._hear_claim(sender, term, t_s)
+        elif term > self.term:
+            self._set(Phase.FOLLOWING, None, term, t_s, f"robot {sender} is in a later term")
+        elif sender == self.leader and term == self.term and not self.is_leader:
+            self._set(Phase.FOLLOWING, None, term, t_s, f"robot {sender} stepped down")
+
+    def set_alive(self, peer: int, alive: bool, t_s: float) -> None:
+        """The runtime saw `peer`'s liveliness token appear (alive) or go away."""
+        if peer == self.index or not 0 <= peer < self.count:
+            return
+        self.peers[peer].token_gone = not alive
+
+    def resume(self, t_s: float) -> None:
+        """After a gap in the sense messages (a frozen process, a world restart): do not act
+        on who led before; follow whoever claims next, keeping the term."""
+        self._set(Phase.FOLLOWING, None, self.term, t_s, "resumed after a gap")
+
+    def update(self, t_s: float) -> None:
+        """Run the time-outs at `t_s`: detect a lost leader and elect (once per tick)."""
+        if self.is_leader or not self._leader_lost(t_s):
+            return
+        live = [i for i in range(self.count) if i != self.leader and self.is_live(i, t_s)]
+        if min(live) == self.index:
+            term = max(self.term, self.highest_term_seen) + 1
+            self._set(Phase.LEADING, self.index, term, t_s, "leader lost: lowest live index")
+        elif self.leader is not None:
+            self._set(Phase.FOLLOWING, None, self.term, self.waiting_since_s, "leader lost")
+
+    # -- queries -------------------------------------------------------------------------
+
+    def is_live(self, robot: int, t_s: float) -> bool:
+        """Whether `robot` counts as live at `t_s` (itself always)."""
+        if robot == self.index:
+            return True
+        peer = self.peers[robot]
+        return not peer.token_gone and t_s - peer.last_heard_s <= self.params.leader_timeout_s
+
+    def acting_leader(self, t_s: float) -> int | None:
+        """The robot whose trajectory the formation follows at `t_s`, or None (none known, or
+        the one followed is lost)."""
+        if self.is_leader:
+            return self.index
+        if self.leader is None or self._leader_lost(t_s):
+            return None
+        return self.leader
+
+    # -- internals -----------------------------------------------------------------------
+
+    def _leader_lost(self, t_s: float) -> bool:
+        if self.leader is not None and self.peers[self.leader].token_gone:
+            return True
+        return t_s - self.waiting_since_s > self.params.leader_timeout_s
+
+    def _hear_claim(self, sender: int, term: int, t_s: float) -> None:
+        if sender == self.leader and term == self.term:
+            self.waiting_since_s = max(self.waiting_since_s, t_s)
+            return
+        current = self.index if self.is_leader else self.leader
+        if current is None:
+            if term >= self.term:
+                self._set(Phase.FOLLOWING, sender, term, t_s, f"robot {sender} claims the lead")
+            return
+        if claim_beats(term, sender, self.term, current):
+            self._set(Phase.FOLLOWING, sender, term, t_s, f"robot {sender} has the better claim")
+
+    def _set(self, phase: Phase, leader: int | None, term: int, t_s: float, reason: str) -> None:
+        changed = (phase, leader, term) != (self.phase, self.leader, self.term)
+        self.phase, self.leader, self.term = phase, leader, term
+        self.waiting_since_s = t_s
+        if changed:
+            self.changes.append(LeaderChange(t_s=t_s, term=term, leader=leader, reason=reason))
+
+
+def slot_of(
+    robot: int,
+    leader: int | None,
+    designated_leader: int,
+    slots: Sequence[tuple[float, float]],
+) -> tuple[float, float]:
+    """The (distance_m, angle_rad) slot of `robot` relative to `leader` (eq. 17).
+
+    `slots[i]` is robot i's scenario slot (the designated leader's entry is unused). A robot
+    with a scenario slot keeps it; the designated leader takes the slot of whoever leads (the
+    one that leader vacated). With no leader known, the designated leader takes no slot yet
+    ((0, 0); it is inactive until it hears a leader anyway).
+    """
+    if robot != designated_leader:
+        return slots[robot]
+    if leader is None or leader == designated_leader:
+        return (0.0, 0.0)
+    return slots[leader]
