@@ -13,13 +13,20 @@ whenever a robot sends one.  The batch simulator calls the same functions, so a 
 `swarm sim` share physics, sensors, radio draws and noise streams, and the metrics are the same
 `MetricsAccumulator`.  Time advances only through `advance(duty, dt_ns)`; randomness comes from
 a generator seeded by the scenario.
+
+`checkpoint_state` captures everything that decides what the engine does next (bodies, time,
+the radio queue and burst states, every generator's state, the sensors' schedules, the metric
+accumulators, the link profile, counters) and `restore_checkpoint` carries on from it in a fresh
+engine, bit for bit (world/checkpoint.py writes it to disk).
 """
 
 from __future__ import annotations
 
 import heapq
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +34,7 @@ from numpy.typing import NDArray
 from robot_firmware.net.wire import FixSample, SenseMessage
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario
+from world.checkpoint import CheckpointError, decode_array, encode_array
 from world.metrics import FormationLayout, MetricsAccumulator
 from world.physics import BodyState
 from world.step import (
@@ -211,3 +219,146 @@ class WorldEngine:
 
     def summary(self) -> dict[str, object]:
         return self.metrics.summaries()[0]
+
+    # -- checkpoints (world/checkpoint.py) -------------------------------------------------
+
+    def _generators(self) -> dict[str, np.random.Generator]:
+        noise = self.noise
+        return {
+            "root": self.rng,
+            "fix": noise.fix,
+            "sonar": noise.sonar,
+            "radio": noise.radio,
+            "slip": noise.slip,
+        }
+
+    def checkpoint_state(self) -> dict[str, object]:
+        """Everything that decides what this engine does next, as JSON-able values: restoring
+        it in a fresh engine of the same scenario continues this run bit for bit."""
+        bodies = self.state.bodies
+        contacts = self.state.contacts
+        echoes = np.array(
+            [[np.nan if t is None else t for t in row] for row in self._sonar_echo_times_s],
+            dtype=np.float64,
+        )
+        metrics = {
+            name: encode_array(value) if isinstance(value, np.ndarray) else value
+            for name, value in self.metrics.export_state().items()
+        }
+        return {
+            "scenario": self.scenario.name,
+            "robots": list(self.names),
+            "t_ns": self.t_ns,
+            "bodies": {
+                "pose": encode_array(bodies.pose),
+                "wheel_speed_radps": encode_array(bodies.wheel_speed_radps),
+                "wheel_angle_rad": encode_array(bodies.wheel_angle_rad),
+                "slip": encode_array(bodies.slip),
+            },
+            "link_bad": encode_array(self.state.link_bad),
+            "contacts": None if contacts is None else encode_array(contacts),
+            "rng": {name: g.bit_generator.state for name, g in self._generators().items()},
+            "radio": {
+                "sent": self.radio.sent,
+                "delivered": self.radio.delivered,
+                "dropped": self.radio.dropped,
+                "latencies_ns": encode_array(np.array(self.radio.latencies_ns, dtype=np.int64)),
+            },
+            "queue": [
+                [f.arrival_ns, f.order, f.receiver, f.sender, f.sent_ns, f.payload.hex()]
+                for f in self._queue
+            ],
+            "order": self._order,
+            "next_fix_ns": self._next_fix_ns,
+            "next_sonar_ns": self._next_sonar_ns,
+            "next_metrics_ns": self._next_metrics_ns,
+            "sonar_echo_times_s": encode_array(echoes),
+            "fixes_cut": encode_array(self.fixes_cut),
+            "link": self.link.model_dump(mode="json", exclude_none=True),
+            "metrics": metrics,
+        }
+
+    def restore_checkpoint(self, state: Mapping[str, Any]) -> None:
+        """Carry on from `checkpoint_state`; a state of another scenario, or one that does not
+        fit this engine, raises CheckpointError and changes nothing."""
+        try:
+            restored = self._restored(state)
+        except CheckpointError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise CheckpointError(f"the state does not fit this world: {exc!r}") from None
+        for name, value in restored.items():
+            setattr(self, name, value)
+
+    def _restored(self, state: Mapping[str, Any]) -> dict[str, object]:
+        """The attributes `state` sets, checked against this engine; nothing is changed."""
+        if state["scenario"] != self.scenario.name or tuple(state["robots"]) != self.names:
+            raise CheckpointError(
+                f"a checkpoint of scenario {state['scenario']!r} with robots {state['robots']}, "
+                f"not of {self.scenario.name!r} with {list(self.names)}"
+            )
+        n = self.robot_count
+        b = state["bodies"]
+        bodies = BodyState(
+            pose=decode_array(b["pose"]),
+            wheel_speed_radps=decode_array(b["wheel_speed_radps"]),
+            wheel_angle_rad=decode_array(b["wheel_angle_rad"]),
+            slip=decode_array(b["slip"]),
+        )
+        shapes = (bodies.pose.shape, bodies.wheel_speed_radps.shape, bodies.slip.shape)
+        if shapes != ((n, 3), (n, 4), (n, 4)) or bodies.wheel_angle_rad.shape != (n, 4):
+            raise CheckpointError(f"body arrays of shapes {shapes} for {n} robots")
+        link_bad = decode_array(state["link_bad"]).astype(bool)
+        contacts = None if state["contacts"] is None else decode_array(state["contacts"])
+        generators = {}
+        for name, current in self._generators().items():
+            fresh = np.random.Generator(type(current.bit_generator)())
+            fresh.bit_generator.state = state["rng"][name]
+            generators[name] = fresh
+        noise = WorldNoise(
+            fix=generators["fix"],
+            sonar=generators["sonar"],
+            radio=generators["radio"],
+            slip=generators["slip"],
+        )
+        r = state["radio"]
+        radio = RadioCounters(
+            sent=int(r["sent"]), delivered=int(r["delivered"]), dropped=int(r["dropped"])
+        )
+        radio.latencies_ns.extend(int(v) for v in decode_array(r["latencies_ns"]))
+        frames = [
+            _Frame(int(a), int(o), int(rc), int(sd), int(sn), bytes.fromhex(p))
+            for a, o, rc, sd, sn, p in state["queue"]
+        ]
+        echoes = decode_array(state["sonar_echo_times_s"])
+        metrics = {
+            name: decode_array(value) if isinstance(value, dict) else value
+            for name, value in state["metrics"].items()
+        }
+        accumulator = MetricsAccumulator(
+            (),
+            self.metrics.layout,
+            self.metrics.obstacle_centres_m,
+            self.metrics.obstacle_radii_m,
+            self.metrics.config,
+        )
+        accumulator.import_state(metrics)
+        link = LinkProfile.model_validate(state["link"])
+        return {
+            "t_ns": int(state["t_ns"]),
+            "state": WorldState(bodies=bodies, link_bad=link_bad, contacts=contacts),
+            "rng": generators["root"],
+            "noise": noise,
+            "radio": radio,
+            "_queue": frames,
+            "_order": int(state["order"]),
+            "_next_fix_ns": int(state["next_fix_ns"]),
+            "_next_sonar_ns": int(state["next_sonar_ns"]),
+            "_next_metrics_ns": int(state["next_metrics_ns"]),
+            "_sonar_echo_times_s": [
+                tuple(None if np.isnan(t) else float(t) for t in row) for row in echoes
+            ],
+            "fixes_cut": decode_array(state["fixes_cut"]).astype(bool),
+            "params": replace(self.params, link=link),
+            "metrics": accumulator,
+        }

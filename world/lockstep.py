@@ -16,6 +16,8 @@ announced have arrived.  Each robot has a seat:
 | `start` (time starts)     | robots that joined before time started owe tick 0 already      |
 | `act(tick, frames)`       | last act tick = tick; frames owed += frames                    |
 | `frame`                   | frames owed -= 1                                               |
+| `resume` (world restarted | tick = the checkpoint's; every seat not live until its token   |
+|  from a checkpoint)       | is seen again (`join`)                                         |
 
 A live seat owes tick k when k >= its first owed tick and either its last act is older than k
 or frames it announced are still to come.  The tick completes when no live seat owes it.
@@ -27,7 +29,7 @@ times the wall clock; a run that falls behind carries on at the same pace from w
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 NS_PER_S = 1_000_000_000
@@ -89,6 +91,33 @@ class LockstepBarrier:
         """The current tick is done (whether or not it was complete): on to the next."""
         self.tick += 1
         return self.tick
+
+    def export_state(self) -> dict[str, object]:
+        """The tick and every seat, as JSON-able values (for a world checkpoint)."""
+        return {
+            "tick": self.tick,
+            "seats": {
+                name: {
+                    "live": s.live,
+                    "last_act_tick": s.last_act_tick,
+                    "frames_owed": s.frames_owed,
+                    "owes_from_tick": s.owes_from_tick,
+                }
+                for name, s in self.seats.items()
+            },
+        }
+
+    def resume(self, state: Mapping[str, object]) -> None:
+        """Carry on at the exported tick, in a restarted world.
+
+        Every seat comes back not live: which robots are alive now is the liveliness tokens'
+        to say (each `join` gives a clean seat), and a robot that died meanwhile must not be
+        waited for.  Frames announced to the dead world are lost with it, so none are owed."""
+        tick = state["tick"]
+        if not isinstance(tick, int) or tick < 0:
+            raise ValueError(f"lockstep tick {tick!r} is not a tick")
+        self.tick = tick
+        self.seats = {name: Seat(live=False, owes_from_tick=tick) for name in self.names}
 
 
 class LockstepPacer:

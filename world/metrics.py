@@ -22,6 +22,7 @@ batch simulator produce the same numbers from the same code.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,6 +136,46 @@ class MetricsAccumulator:
         self.collisions = np.zeros(batch_shape, dtype=np.int64)
         self._previous_contacts: BoolArray | None = None
         self.last_t_s = 0.0
+
+    ARRAY_FIELDS = (
+        "last_near_obstacle_s",
+        "sum_sq_position_nominal",
+        "sum_sq_heading_nominal",
+        "count_nominal",
+        "sum_sq_position_all",
+        "sum_sq_heading_all",
+        "count_all",
+        "max_position_nominal",
+        "max_position_all",
+        "sum_abs_error",
+        "count_fitness",
+        "min_robot_gap_m",
+        "min_obstacle_gap_m",
+        "collisions",
+    )
+    """The running sums and extremes: with the previous contacts and the last sample's time,
+    everything a restarted world needs to carry on (world/checkpoint.py)."""
+
+    def export_state(self) -> dict[str, object]:
+        """The accumulators as arrays (copies), for a checkpoint."""
+        state: dict[str, object] = {
+            name: np.array(getattr(self, name)) for name in self.ARRAY_FIELDS
+        }
+        state["previous_contacts"] = self._previous_contacts
+        state["last_t_s"] = self.last_t_s
+        return state
+
+    def import_state(self, state: Mapping[str, object]) -> None:
+        """Carry on from `export_state`; shapes must be those of this accumulator."""
+        for name in self.ARRAY_FIELDS:
+            value = np.asarray(state[name])
+            current = np.asarray(getattr(self, name))
+            if value.shape != current.shape:
+                raise ValueError(f"metrics {name}: shape {value.shape}, expected {current.shape}")
+            setattr(self, name, value.astype(current.dtype))
+        contacts = state["previous_contacts"]
+        self._previous_contacts = None if contacts is None else np.asarray(contacts, dtype=bool)
+        self.last_t_s = float(state["last_t_s"])  # type: ignore[arg-type]
 
     def update(
         self,

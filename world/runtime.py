@@ -16,6 +16,11 @@ Clock modes:
   `max_speed` set, a tick is not started before its simulated time divided by `max_speed` has
   passed on the wall clock (a deterministic run slowed down to watch; results unchanged).
 
+With an output directory the world checkpoints its whole state (engine, lockstep bookkeeping,
+counters) every `checkpoint_every_s` simulated seconds (at most 1) into `<out>/checkpoints/`,
+written on a thread of its own, durably and atomically (world/checkpoint.py); a world started
+on a directory that holds one resumes from the newest valid checkpoint instead of t = 0.
+
 At the end (duration reached, SIGTERM or Ctrl-C) and every few seconds meanwhile the world
 writes `summary.json` with the schema of `swarm sim`, plus radio counters and the robots'
 control-loop timing, atomically.  Admin queryables: `admin/world/status`, `admin/world/net`
@@ -34,7 +39,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import zenoh
@@ -85,6 +90,14 @@ from swarm_config.credentials import (
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario, load_rule_base
 from swarm_config.settings import LayeredSettings, describe_validation_error
+from world.checkpoint import (
+    CHECKPOINT_DIR_NAME,
+    CheckpointError,
+    CheckpointStore,
+    CheckpointWriter,
+    LoadedCheckpoint,
+    encode_checkpoint,
+)
 from world.engine import NS_PER_S, WorldEngine
 from world.lockstep import LockstepBarrier, LockstepPacer
 from world.metrics import FormationLayout, reference_points, sample_errors
@@ -114,6 +127,8 @@ class WorldConfig(LayeredSettings):
     summary_every_s: PositiveFloat = 5.0
     radio_profile: str | None = None
     start_timeout_s: PositiveFloat = 30.0
+    checkpoint_every_s: float = Field(default=0.5, gt=0.0, le=1.0)
+    """Simulated seconds between checkpoints in `<out_dir>/checkpoints/` (at most 1)."""
     max_speed: PositiveFloat | None = None
     """Lockstep only: at most this many simulated seconds per wall second (None: as fast as
     the robots answer)."""
@@ -198,6 +213,72 @@ class WorldProcess:
         self.rule_count_total = int(np.asarray(load_rule_base(scenario).rule_count)) * len(
             self.names
         )
+        self._clock_started_sim_ns = 0
+        self.next_sense_ns = 0
+        """Real time: when the next sense message is due (simulation ns)."""
+        self.checkpoint_period_ns = round(config.checkpoint_every_s * NS_PER_S)
+        self._next_checkpoint_ns = self.checkpoint_period_ns
+        self.checkpoints = (
+            None
+            if config.out_dir is None
+            else CheckpointStore(config.out_dir / CHECKPOINT_DIR_NAME)
+        )
+        self._checkpoint_writer: CheckpointWriter | None = None
+        self.resumed_from: LoadedCheckpoint | None = None
+        if self.checkpoints is not None:
+            self.resumed_from = self.checkpoints.load_latest(self.restore_checkpoint)
+            if self.resumed_from is not None:
+                log.info(
+                    "resuming from checkpoint %s: tick %d, t = %.3f s",
+                    self.resumed_from.path.name,
+                    self.tick,
+                    self.engine.t_s,
+                )
+
+    # -- checkpoints -----------------------------------------------------------------------
+
+    def checkpoint_state(self) -> dict[str, object]:
+        """The engine's state, the lockstep bookkeeping and the world's own counters."""
+        return {
+            "engine": self.engine.checkpoint_state(),
+            "lockstep": self.barrier.export_state(),
+            "next_sense_ns": self.next_sense_ns,
+            "counters": {
+                "acts_accepted": self.act_counters.accepted,
+                "acts_dropped": self.act_counters.dropped_as_dict(),
+                "malformed_telemetry": self.malformed_telemetry,
+                "unknown_senders": self.unknown_senders,
+                "spoofed_frames": self.spoofed_frames,
+            },
+        }
+
+    def restore_checkpoint(self, state: Mapping[str, Any]) -> None:
+        """Carry on from `checkpoint_state` (raises CheckpointError, changing nothing, for a
+        state that does not fit this world)."""
+        try:
+            counters = state["counters"]
+            dropped = {WireDropReason(k): int(v) for k, v in counters["acts_dropped"].items()}
+            numbers = [
+                int(counters[k])
+                for k in ("acts_accepted", "malformed_telemetry", "unknown_senders")
+            ] + [int(counters["spoofed_frames"]), int(state["next_sense_ns"])]
+            lockstep = state["lockstep"]
+            LockstepBarrier(self.names).resume(lockstep)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise CheckpointError(f"the world's part does not fit: {exc!r}") from None
+        self.engine.restore_checkpoint(state["engine"])
+        self.barrier.resume(lockstep)
+        self.act_counters.accepted = numbers[0]
+        self.act_counters.dropped.update(dropped)
+        self.malformed_telemetry, self.unknown_senders, self.spoofed_frames = numbers[1:4]
+        self.next_sense_ns = numbers[4]
+        self._next_checkpoint_ns = self.engine.t_ns + self.checkpoint_period_ns
+
+    def _checkpoint_if_due(self) -> None:
+        if self._checkpoint_writer is None or self.engine.t_ns < self._next_checkpoint_ns:
+            return
+        self._next_checkpoint_ns = self.engine.t_ns + self.checkpoint_period_ns
+        self._checkpoint_writer.submit(self.tick, encode_checkpoint(self.checkpoint_state()))
 
     @property
     def tick(self) -> int:
@@ -342,12 +423,20 @@ class WorldProcess:
                 "lockstep" if cfg.lockstep else "real time",
                 self.scenario.radio.profile,
             )
+            if self.checkpoints is not None:
+                self._checkpoint_writer = CheckpointWriter(self.checkpoints)
             try:
                 if cfg.lockstep:
                     self._run_lockstep(session, clock_pub, truth_pub)
                 else:
                     self._run_realtime(session, clock_pub, truth_pub)
             finally:
+                if self._checkpoint_writer is not None:
+                    if self.checkpoints is not None and self.engine.t_ns > 0:
+                        self._checkpoint_writer.submit(
+                            self.tick, encode_checkpoint(self.checkpoint_state())
+                        )
+                    self._checkpoint_writer.close()
                 self.write_summary(final=True)
                 token.undeclare()
         return 0
@@ -371,6 +460,7 @@ class WorldProcess:
             self._wake.clear()
         self.barrier.start()
         self._clock_started_mono_s = time.monotonic()
+        self._clock_started_sim_ns = self.engine.t_ns
         next_summary = time.monotonic() + self.config.summary_every_s
         pacer = LockstepPacer(self.config.max_speed, self._wait_serving_queries)
         while not self.stop.is_set() and (end is None or self.tick < end):
@@ -391,6 +481,7 @@ class WorldProcess:
             self.engine.advance(np.where(self._dead()[:, None], 0.0, self.duty), self.period_ns)
             self.barrier.advance()
             self._publish_truth(truth_pub)
+            self._checkpoint_if_due()
             if time.monotonic() >= next_summary:
                 next_summary += self.config.summary_every_s
                 self.write_summary()
@@ -402,10 +493,11 @@ class WorldProcess:
         event to event (an act changes a duty, a frame falls due, a sense message is due):
         `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost."""
         end = self._end_tick()
-        start = time.monotonic_ns()
-        self._clock_started_mono_s = start / NS_PER_S
+        # A resumed world carries on from the checkpoint's time.
+        start = time.monotonic_ns() - self.engine.t_ns
+        self._clock_started_mono_s = time.monotonic()
+        self._clock_started_sim_ns = self.engine.t_ns
         next_summary = time.monotonic() + self.config.summary_every_s
-        next_sense_ns = 0
 
         def advance_to(sim_ns: int) -> None:
             while self.engine.t_ns < sim_ns:
@@ -419,7 +511,7 @@ class WorldProcess:
         self._catch_up = catch_up
         try:
             while not self.stop.is_set() and (end is None or self.tick < end):
-                due = next_sense_ns
+                due = self.next_sense_ns
                 frame_due = self.engine.next_frame_due_ns()
                 if frame_due is not None:
                     due = min(due, frame_due)
@@ -429,8 +521,8 @@ class WorldProcess:
                     self._wake.clear()
                 self._drain()
                 now_sim = time.monotonic_ns() - start
-                if now_sim >= next_sense_ns:
-                    advance_to(next_sense_ns)
+                if now_sim >= self.next_sense_ns:
+                    advance_to(self.next_sense_ns)
                     self._publish_sense(lockstep=False, delivered=self._deliver_radio(session))
                     clock_pub.put(
                         encode_clock(
@@ -438,8 +530,9 @@ class WorldProcess:
                         )
                     )
                     self.barrier.advance()
-                    next_sense_ns += self.period_ns
+                    self.next_sense_ns += self.period_ns
                     self._publish_truth(truth_pub)
+                    self._checkpoint_if_due()
                 else:
                     advance_to(now_sim)
                     self._deliver_radio(session)
@@ -507,7 +600,8 @@ class WorldProcess:
         if self._clock_started_mono_s is None:
             return None
         wall_s = time.monotonic() - self._clock_started_mono_s
-        return round(self.engine.t_s / wall_s, 4) if wall_s > 0 else None
+        sim_s = (self.engine.t_ns - self._clock_started_sim_ns) / NS_PER_S
+        return round(sim_s / wall_s, 4) if wall_s > 0 else None
 
     def summary(self) -> dict[str, object]:
         scenario = self.scenario.model_copy(update={"duration_s": max(self.engine.t_s, 1e-9)})
