@@ -20,6 +20,8 @@ With an output directory the world checkpoints its whole state (engine, lockstep
 counters) every `checkpoint_every_s` simulated seconds (at most 1) into `<out>/checkpoints/`,
 written on a thread of its own, durably and atomically (world/checkpoint.py); a world started
 on a directory that holds one resumes from the newest valid checkpoint instead of t = 0.
+Every start of the world has a new random epoch on its clock and sense messages, so the
+robots know when the clock jumped (robot_firmware/tick_scheduler.py).
 
 At the end (duration reached, SIGTERM or Ctrl-C) and every few seconds meanwhile the world
 writes `summary.json` with the schema of `swarm sim`, plus radio counters and the robots'
@@ -34,6 +36,7 @@ import gc
 import json
 import logging
 import queue
+import secrets
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -176,6 +179,15 @@ class WorldConfig(LayeredSettings):
         return self
 
 
+def new_epoch(avoid: object = None) -> int:
+    """A random non-zero u32 naming one start of the world, never `avoid` (the epoch of the
+    checkpoint it resumes from); 0 is what a message without one would say."""
+    while True:
+        epoch = secrets.randbits(32)
+        if epoch not in (0, avoid):
+            return epoch
+
+
 class WorldProcess:
     def __init__(self, config: WorldConfig, scenario: Scenario) -> None:
         if config.radio_profile is not None:
@@ -225,6 +237,8 @@ class WorldProcess:
         )
         self._checkpoint_writer: CheckpointWriter | None = None
         self.resumed_from: LoadedCheckpoint | None = None
+        self.epoch = new_epoch()
+        """This start of the world, on every clock and sense message (DESIGN.md §7.1)."""
         if self.checkpoints is not None:
             self.resumed_from = self.checkpoints.load_latest(self.restore_checkpoint)
             if self.resumed_from is not None:
@@ -242,6 +256,7 @@ class WorldProcess:
         return {
             "engine": self.engine.checkpoint_state(),
             "lockstep": self.barrier.export_state(),
+            "epoch": self.epoch,
             "next_sense_ns": self.next_sense_ns,
             "counters": {
                 "acts_accepted": self.act_counters.accepted,
@@ -272,6 +287,7 @@ class WorldProcess:
         self.act_counters.dropped.update(dropped)
         self.malformed_telemetry, self.unknown_senders, self.spoofed_frames = numbers[1:4]
         self.next_sense_ns = numbers[4]
+        self.epoch = new_epoch(avoid=state.get("epoch"))
         self._next_checkpoint_ns = self.engine.t_ns + self.checkpoint_period_ns
 
     def _checkpoint_if_due(self) -> None:
@@ -380,6 +396,7 @@ class WorldProcess:
                 t_ns=self.engine.t_ns,
                 lockstep=lockstep,
                 radio_frames=delivered[i],
+                epoch=self.epoch,
             )
             self._publishers[name].put(encode_sense(message))
 
@@ -468,7 +485,9 @@ class WorldProcess:
             self._drain()
             self._publish_sense(lockstep=True, delivered=self._deliver_radio(session))
             clock_pub.put(
-                encode_clock(ClockMessage(self.tick, self.engine.t_ns, self.period_ns, True))
+                encode_clock(
+                    ClockMessage(self.tick, self.engine.t_ns, self.period_ns, True, self.epoch)
+                )
             )
             # A robot is done with this tick when its act has come, and the frames it
             # announced in it too.
@@ -526,7 +545,9 @@ class WorldProcess:
                     self._publish_sense(lockstep=False, delivered=self._deliver_radio(session))
                     clock_pub.put(
                         encode_clock(
-                            ClockMessage(self.tick, self.engine.t_ns, self.period_ns, False)
+                            ClockMessage(
+                                self.tick, self.engine.t_ns, self.period_ns, False, self.epoch
+                            )
                         )
                     )
                     self.barrier.advance()

@@ -7,13 +7,19 @@ Each is an explicit little-endian `struct` layout with a version byte.
                               tick u64, t_ns u64,
                               encoder counts 4 x i64, fix x_m, y_m, heading_rad 3 x f64,
                               fix stamp_ns u64,
-                              then n_sonar x f32 echo times in seconds (< 0: no echo)
+                              then n_sonar x f32 echo times in seconds (< 0: no echo),
+                              then the world's epoch u32
     act    (fabric -> world)  version u8, enabled bits u8, watchdog expired u8,
                               radio frames sent this tick u8, tick u64, duty 4 x f64
 
 The frame counts let lockstep be deterministic: radio frames travel on their own keys, so a
 receiver waits until it holds as many frames as the message announces before it goes on.
-    clock  (world -> all)     version u8, lockstep u8, pad u16, tick u64, t_ns u64, dt_ns u64
+    clock  (world -> all)     version u8, lockstep u8, pad u16, tick u64, t_ns u64, dt_ns u64,
+                              epoch u32
+
+The epoch names one start of the world process (DESIGN.md §7.1): a world restarted from a
+checkpoint, or from nothing, sends another one, and its clock may have jumped backwards or
+forwards; a robot that sees a new epoch re-synchronises to the new time.  Version 2 added it.
 
 Receiving: `parse_sense`, `parse_act` and `parse_clock` never raise.  Each returns the message
 or the first `WireDropReason` that refuses it, checks in this order: bytes-like (`not_bytes`);
@@ -35,7 +41,8 @@ import math
 import struct
 from dataclasses import dataclass, field
 
-WIRE_VERSION = 1
+WIRE_VERSION = 2
+EPOCH_MAX = 0xFFFF_FFFF
 MAX_SONAR = 64
 MAX_ABS_FIX_M = 1.0e4
 """Largest |x| or |y| of a positioning fix, metres (the radio frames' bound)."""
@@ -44,7 +51,8 @@ MAX_ECHO_TIME_S = 1.0
 
 _SENSE_HEAD = struct.Struct("<BBBBQQ4q3dQ")
 _ACT = struct.Struct("<BBBBQ4d")
-_CLOCK = struct.Struct("<BBHQQQ")
+_CLOCK = struct.Struct("<BBHQQQI")
+_EPOCH = struct.Struct("<I")
 
 _FIX_PRESENT = 1
 _FIX_VALID = 2
@@ -116,6 +124,7 @@ class SenseMessage:
     t_ns: int = 0
     lockstep: bool = False
     radio_frames: int = 0
+    epoch: int = 0
 
 
 @dataclass(frozen=True)
@@ -137,6 +146,7 @@ class ClockMessage:
     t_ns: int
     dt_ns: int
     lockstep: bool
+    epoch: int = 0
 
 
 def encode_sense(message: SenseMessage) -> bytes:
@@ -161,7 +171,7 @@ def encode_sense(message: SenseMessage) -> bytes:
         heading,
         stamp,
     )
-    return head + struct.pack(f"<{len(echoes)}f", *echoes)
+    return head + struct.pack(f"<{len(echoes)}f", *echoes) + _EPOCH.pack(message.epoch)
 
 
 def parse_sense(data: object, sonar_count: int | None = None) -> SenseMessage | WireDropReason:
@@ -179,7 +189,7 @@ def parse_sense(data: object, sonar_count: int | None = None) -> SenseMessage | 
         return WireDropReason.UNSUPPORTED_VERSION
     if n_sonar > MAX_SONAR:
         return WireDropReason.TOO_MANY_SONARS
-    size = _SENSE_HEAD.size + 4 * n_sonar
+    size = _SENSE_HEAD.size + 4 * n_sonar + _EPOCH.size
     if len(raw) != size:
         return WireDropReason.TOO_SHORT if len(raw) < size else WireDropReason.TOO_LONG
     if flags & ~_SENSE_FLAGS:
@@ -187,6 +197,7 @@ def parse_sense(data: object, sonar_count: int | None = None) -> SenseMessage | 
     if sonar_count is not None and n_sonar != sonar_count:
         return WireDropReason.WRONG_SONAR_COUNT
     echoes = struct.unpack_from(f"<{n_sonar}f", raw, _SENSE_HEAD.size)
+    (epoch,) = _EPOCH.unpack_from(raw, size - _EPOCH.size)
     if not all(math.isfinite(v) for v in (x, y, heading, *echoes)):
         return WireDropReason.NON_FINITE
     if (
@@ -206,6 +217,7 @@ def parse_sense(data: object, sonar_count: int | None = None) -> SenseMessage | 
         t_ns=t_ns,
         lockstep=bool(flags & _LOCKSTEP),
         radio_frames=radio_frames,
+        epoch=epoch,
     )
 
 
@@ -260,7 +272,13 @@ def decode_act(data: object) -> ActMessage | None:
 
 def encode_clock(message: ClockMessage) -> bytes:
     return _CLOCK.pack(
-        WIRE_VERSION, int(message.lockstep), 0, message.tick, message.t_ns, message.dt_ns
+        WIRE_VERSION,
+        int(message.lockstep),
+        0,
+        message.tick,
+        message.t_ns,
+        message.dt_ns,
+        message.epoch,
     )
 
 
@@ -271,14 +289,14 @@ def parse_clock(data: object) -> ClockMessage | WireDropReason:
         return WireDropReason.NOT_BYTES
     if len(raw) != _CLOCK.size:
         return WireDropReason.TOO_SHORT if len(raw) < _CLOCK.size else WireDropReason.TOO_LONG
-    version, lockstep, pad, tick, t_ns, dt_ns = _CLOCK.unpack(raw)
+    version, lockstep, pad, tick, t_ns, dt_ns, epoch = _CLOCK.unpack(raw)
     if version != WIRE_VERSION:
         return WireDropReason.UNSUPPORTED_VERSION
     if lockstep > 1 or pad:
         return WireDropReason.RESERVED_BITS
     if dt_ns == 0:
         return WireDropReason.OUT_OF_RANGE
-    return ClockMessage(tick=tick, t_ns=t_ns, dt_ns=dt_ns, lockstep=bool(lockstep))
+    return ClockMessage(tick=tick, t_ns=t_ns, dt_ns=dt_ns, lockstep=bool(lockstep), epoch=epoch)
 
 
 def decode_clock(data: object) -> ClockMessage | None:

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.wire import (
     MAX_SONAR,
+    WIRE_VERSION,
     ActMessage,
     ClockMessage,
     FixSample,
@@ -48,17 +49,25 @@ def test_sense_round_trip_keeps_every_field() -> None:
 def test_act_and_clock_round_trip() -> None:
     act = ActMessage(7, (0.5, -0.25, 0.0, 1.0), (True, False, True, True), False)
     assert decode_act(encode_act(act)) == act
-    clock = ClockMessage(tick=9, t_ns=90_000_000, dt_ns=10_000_000, lockstep=True)
+    clock = ClockMessage(tick=9, t_ns=90_000_000, dt_ns=10_000_000, lockstep=True, epoch=2**32 - 1)
+    assert decode_clock(encode_clock(clock)) == clock
+
+
+def test_sense_and_clock_carry_the_world_epoch() -> None:
+    message = SenseMessage((1, 2, 3, 4), (0.5, None), None, tick=3, t_ns=30, epoch=0xDEADBEEF)
+    assert decode_sense(encode_sense(message)) == message
+    assert decode_sense(encode_sense(message), 2) == message
+    clock = ClockMessage(tick=3, t_ns=30, dt_ns=10, lockstep=False, epoch=7)
     assert decode_clock(encode_clock(clock)) == clock
 
 
 def test_malformed_messages_are_refused() -> None:
     good = encode_act(ActMessage(1, (0.0, 0.0, 0.0, 0.0), (True,) * 4, False))
     assert decode_act(good[:-1]) is None
-    assert decode_act(b"\x02" + good[1:]) is None
-    bad_duty = struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, 2.0, 0.0, 0.0, 0.0)
+    assert decode_act(bytes([WIRE_VERSION + 1]) + good[1:]) is None
+    bad_duty = struct.pack("<BBBBQ4d", WIRE_VERSION, 0, 0, 0, 1, 2.0, 0.0, 0.0, 0.0)
     assert decode_act(bad_duty) is None
-    nan_duty = struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, float("nan"), 0.0, 0.0, 0.0)
+    nan_duty = struct.pack("<BBBBQ4d", WIRE_VERSION, 0, 0, 0, 1, float("nan"), 0.0, 0.0, 0.0)
     assert decode_act(nan_duty) is None
     sense = encode_sense(SenseMessage((0, 0, 0, 0), (0.01,), None))
     assert decode_sense(sense + b"\x00") is None
@@ -86,7 +95,7 @@ def test_keys_follow_the_design_and_names_are_checked() -> None:
 
 
 def _act_with_duty(duty_0: float) -> bytes:
-    return struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, duty_0, 0.0, 0.0, 0.0)
+    return struct.pack("<BBBBQ4d", WIRE_VERSION, 0, 0, 0, 1, duty_0, 0.0, 0.0, 0.0)
 
 
 def test_every_refusal_is_named_in_check_order() -> None:
@@ -104,7 +113,10 @@ def test_every_refusal_is_named_in_check_order() -> None:
         (parse_sense(sense[:10], 2), WireDropReason.TOO_SHORT),
         (parse_sense(sense[:-1], 2), WireDropReason.TOO_SHORT),
         (parse_sense(sense + b"\0", 2), WireDropReason.TOO_LONG),
-        (parse_sense(b"\x02" + sense[1:], 2), WireDropReason.UNSUPPORTED_VERSION),
+        (
+            parse_sense(bytes([WIRE_VERSION + 1]) + sense[1:], 2),
+            WireDropReason.UNSUPPORTED_VERSION,
+        ),
         (
             parse_sense(sense[:1] + bytes([MAX_SONAR + 1]) + sense[2:], 2),
             WireDropReason.TOO_MANY_SONARS,
@@ -118,11 +130,11 @@ def test_every_refusal_is_named_in_check_order() -> None:
         (parse_act(act[:1] + b"\x10" + act[2:]), WireDropReason.RESERVED_BITS),
         (parse_act(act[:2] + b"\x02" + act[3:]), WireDropReason.RESERVED_BITS),
         (
-            parse_act(struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, math.inf, 0, 0, 0)),
+            parse_act(struct.pack("<BBBBQ4d", WIRE_VERSION, 0, 0, 0, 1, math.inf, 0, 0, 0)),
             WireDropReason.NON_FINITE,
         ),
         (
-            parse_act(struct.pack("<BBBBQ4d", 1, 0, 0, 0, 1, 1.5, 0, 0, 0)),
+            parse_act(struct.pack("<BBBBQ4d", WIRE_VERSION, 0, 0, 0, 1, 1.5, 0, 0, 0)),
             WireDropReason.OUT_OF_RANGE,
         ),
         (parse_clock(clock + b"\0"), WireDropReason.TOO_LONG),
