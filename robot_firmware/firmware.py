@@ -13,12 +13,21 @@ Every 10 ms `control_tick` runs the five levels in order:
 Levels 2-4 are `control_step`, the same function the batch simulator runs for thousands of
 robots at once; here its batch shape is ().  Radio frames arrive through `receive` between
 ticks; malformed, stale, replayed or unauthenticated ones are dropped and counted by the frame
-decoder and never reach the control law.  Time is an argument (`now_ns`); the class opens no
+decoder and never reach the control law; a frame whose sender has no fix yet (`localised`
+False) is not used either, and a robot with no fix broadcasts nothing.
+
+When the sense messages stop (the scheduler's `SafeStop`), `safe_stop` turns the motors off
+through the motor driver and stops kicking the watchdog, so the watchdog IP cuts the PWM at
+its timeout even if the driver's writes were lost.  The first tick after the gap (`resume`)
+starts from a fresh control state: it re-localises from the next fix, its PID and avoidance
+state start from zero, and peer states outside the decoder's age window are dropped.
+Time is an argument (`now_ns`); the class opens no
 socket and reads no clock, so a test can run it against a fabric model in one process.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -147,6 +156,11 @@ class Firmware:
         self._next_sonar_ns = 0
         self.ticks = 0
         self.frames_sent = 0
+        self.unlocalised_peer_frames = 0
+        """Authentic frames refused because their sender had no fix (`localised` False)."""
+        self.safe_stopped = False
+        """Whether the motors are held off for want of sense messages (`safe_stop`)."""
+        self._fresh_state_pending = False
         self.last_state: ControllerState | None = None
         self.last_inputs: ControlInputs | None = None
 
@@ -175,6 +189,9 @@ class Firmware:
         frame = self.decoder.decode(data, now_ns)
         if frame is None or frame.sender_id >= len(self.mission.names):
             return False
+        if not frame.localised:
+            self.unlocalised_peer_frames += 1
+            return False
         i = frame.sender_id
         self.peer_pose[i] = (frame.x_m, frame.y_m, frame.theta_rad)
         self.peer_rate[i] = (frame.xdot_mps, frame.ydot_mps, frame.thetadot_radps)
@@ -182,12 +199,40 @@ class Firmware:
         self.peer_is_leader[i] = frame.role == Role.LEADER
         return True
 
+    def safe_stop(self) -> None:
+        """No sense messages: duty 0 and outputs disabled through the motor driver, and no more
+        watchdog kicks (its IP cuts the PWM at its timeout).  Repeating it changes nothing."""
+        self.drivers.motors.disable()
+        self.safe_stopped = True
+
+    def resume(self, now_ns: int) -> None:
+        """Sense messages are back after a gap: drop what went stale before the next tick.
+
+        Peer states stamped outside the decoder's window around `now_ns` are forgotten, the
+        broadcast and sonar schedules restart, and the next `control_tick` starts from a fresh
+        control state (unlocalised until the next fix; encoders counted from that tick on)."""
+        decoder = self.decoder
+        age_ns = now_ns - self.peer_stamp_s * NS_PER_S
+        stale = (age_ns > decoder.max_age_ns) | (age_ns < -decoder.max_future_ns)
+        self.peer_stamp_s[stale] = -np.inf
+        self.sonar_gap_m[:] = np.inf
+        self._next_broadcast_ns = 0
+        self._next_sonar_ns = 0
+        self._fresh_state_pending = True
+
     def control_tick(self, now_ns: int) -> TickReport:
         """Run the 5C levels once at time now_ns."""
         d = self.drivers
         t_s = now_ns / NS_PER_S
         # Level 1: connection.
         counts = d.encoders.read_counts()
+        if self._fresh_state_pending:
+            self._fresh_state_pending = False
+            fresh = ControllerState.initial((), self.mission.sonar_count)
+            estimator = dataclasses.replace(
+                fresh.estimator, previous_counts=np.array(counts, dtype=np.int64)
+            )
+            self.state = dataclasses.replace(fresh, estimator=estimator)
         fix = d.positioning.read_fix()
         if fix is not None:
             self.fix_pose = np.array([fix.x_m, fix.y_m, fix.heading_rad])
@@ -221,8 +266,9 @@ class Firmware:
         # Level 5: configuration.
         d.motors.set_duty(tuple(float(x) for x in outputs.duty))
         d.watchdog.kick()
+        self.safe_stopped = False
         frame = None
-        if now_ns >= self._next_broadcast_ns:
+        if now_ns >= self._next_broadcast_ns and bool(self.state.estimator.localised):
             self._next_broadcast_ns = now_ns + self._broadcast_period_ns
             frame = self._broadcast(now_ns)
         self.ticks += 1

@@ -9,7 +9,12 @@ world's sense messages say so) one tick per sense message, answered by an act me
 the same tick number.  Each tick applies the sense messages that arrived to the pins, hands over
 the radio frames, runs the 5C tick, publishes the PWM pins (`wire/<robot>/act`) and any radio
 frame, and advances the fabric to the tick's time.  Until the first sense message there is no
-time and the control loop waits (admin queries are still served).
+time and the control loop waits (admin queries are still served).  In real time, when no sense
+message has come for the scheduler's sense time-out (the world is gone, or this process was
+frozen), each period is a safe stop instead of a tick: the firmware holds the motors off and
+no longer kicks the watchdog, the fabric's time runs on so the watchdog IP cuts the PWM, and
+the act message says so (duty 0, disabled, then watchdog expired).  The first tick after the
+gap re-localises and drops stale peer state (`Firmware.resume`).
 A liveliness token `alive/robot/<name>` tells the world and the launcher that the robot is up.
 Telemetry (estimate, desired pose, gains, fuzzy output, counters, loop timing) is published at
 its own rate.
@@ -63,7 +68,7 @@ from robot_firmware.net.wire import (
 )
 from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
-from robot_firmware.tick_scheduler import TickScheduler, Wait
+from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler, Wait
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, CredentialsFile
 from swarm_config.scenario import load_fuzzy_parameters, load_scenario
 from swarm_config.settings import LayeredSettings, describe_validation_error
@@ -196,10 +201,27 @@ class RobotProcess:
                     self._wake.wait(decision.timeout_s)
                     self._wake.clear()
                     continue
-                self._control(decision.sim_time_ns, decision.tick, act_pub, tx_pub, telemetry_pub)
+                self._run_period(decision, act_pub, tx_pub, telemetry_pub)
                 self.scheduler.finished(decision, time.monotonic_ns())
             token.undeclare()
         return 0
+
+    def _run_period(
+        self,
+        decision: RunTick | SafeStop,
+        act_pub: zenoh.Publisher,
+        tx_pub: zenoh.Publisher,
+        telemetry_pub: zenoh.Publisher,
+    ) -> None:
+        """What the scheduler decided: a safe stop, or a control tick (after a gap in the sense
+        messages, on fresh state)."""
+        if isinstance(decision, SafeStop):
+            self._safe_stop(decision, act_pub, telemetry_pub)
+            return
+        if decision.resumed:
+            log.info("sense messages back: re-localising, stale peer state dropped")
+            self.firmware.resume(decision.sim_time_ns)
+        self._control(decision.sim_time_ns, decision.tick, act_pub, tx_pub, telemetry_pub)
 
     def _take_sense(self) -> None:
         """Apply every queued sense message to the pins in order and tell the scheduler."""
@@ -244,6 +266,26 @@ class RobotProcess:
         if report.frame is not None:
             tx_pub.put(report.frame)
             frames_sent = 1
+        self._publish_act(tick, frames_sent, act_pub)
+        self._publish_telemetry(now_ns, telemetry_pub)
+
+    def _safe_stop(
+        self, decision: SafeStop, act_pub: zenoh.Publisher, telemetry_pub: zenoh.Publisher
+    ) -> None:
+        """A period with no sense messages: motors off, no kick; the fabric's time runs on."""
+        if decision.entered:
+            log.warning(
+                "no sense message for %.0f ms: motors off, watchdog no longer kicked",
+                self.scheduler.sense_timeout_ns / 1e6,
+            )
+        now_ns = decision.sim_time_ns
+        if now_ns > self._fabric_time_ns:
+            self._tick_fabric(now_ns - self._fabric_time_ns)
+        self.firmware.safe_stop()
+        self._publish_act(0, 0, act_pub)
+        self._publish_telemetry(now_ns, telemetry_pub)
+
+    def _publish_act(self, tick: int, frames_sent: int, act_pub: zenoh.Publisher) -> None:
         actuation = self.fabric.hw_read_actuation()
         duty = actuation.duty
         enabled = actuation.enabled
@@ -258,6 +300,8 @@ class RobotProcess:
                 )
             )
         )
+
+    def _publish_telemetry(self, now_ns: int, telemetry_pub: zenoh.Publisher) -> None:
         if now_ns >= self._next_telemetry_ns:
             self._next_telemetry_ns = now_ns + self._telemetry_period_ns
             self._telemetry_count += 1
@@ -279,6 +323,9 @@ class RobotProcess:
             "bus_errors": self.drivers.bus_errors,
             "malformed_sense": self.sense_counters.dropped_total,
             "dropped_sense": self.sense_counters.dropped_as_dict(),
+            "unlocalised_peer_frames": self.firmware.unlocalised_peer_frames,
+            "safe_stopped": self.scheduler.safe_stopped,
+            "safe_stops": self.scheduler.safe_stops,
             "timing": LoopTimingReport(
                 ticks=timing.ticks,
                 deadline_misses=timing.deadline_misses,

@@ -13,11 +13,18 @@ Two clock modes, chosen by the world's sense messages:
   timestamps of different robots compare.  A tick that starts more than a period late, or ends
   after its period, is a deadline miss; a loop that falls more than five periods behind starts
   its deadlines afresh instead of running a burst of late ticks.
+  When no sense message has arrived for `sense_timeout_ns` (the world died, or this process
+  was frozen), the scheduler stops controlling: every period it answers `SafeStop` instead of
+  a tick, and the firmware holds the motors off and stops kicking the watchdog.  The first
+  tick after sense messages come back (or after any gap in their arrival longer than the
+  timeout) is marked `resumed`, so the firmware drops what went stale, and its deadlines
+  start afresh from the message's arrival.
 * **lockstep**: one tick per sense message, at the message's simulation time, answered with its
   tick number; it runs once the radio frames the message announces have arrived.  After a
   (re)join two ticks may be queued: only the newest is answered.
 
-Until the first sense message there is no time, and no tick runs.
+Until the first sense message there is no time, and no tick runs.  Lockstep has no sense
+time-out: without the world no simulated time passes, and no tick means no control.
 """
 
 from __future__ import annotations
@@ -32,6 +39,8 @@ IDLE_WAIT_S = 0.05
 """How long to sleep when nothing can happen before new input arrives."""
 RESYNC_PERIODS = 5
 """A real-time loop this many periods behind starts its deadlines afresh."""
+SENSE_TIMEOUT_PERIODS = 10
+"""Default sense time-out, in control periods (100 ms at 100 Hz)."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +58,21 @@ class RunTick:
     sim_time_ns: int
     tick: int
     started_mono_ns: int
+    resumed: bool = False
+    """The first tick after a safe stop or a gap in the sense messages: state from before the
+    gap is stale."""
+
+
+@dataclass(frozen=True)
+class SafeStop:
+    """No sense message for the sense time-out: motors off, no watchdog kick, no control.
+
+    Answered once a period while it lasts; `sim_time_ns` is the extrapolated simulation time
+    (the fabric keeps running, so its watchdog expires), `entered` is True the first time."""
+
+    sim_time_ns: int
+    started_mono_ns: int
+    entered: bool
 
 
 @dataclass(frozen=True)
@@ -81,14 +105,28 @@ class LoopTiming:
 
 
 class TickScheduler:
-    def __init__(self, period_ns: int) -> None:
+    def __init__(self, period_ns: int, sense_timeout_ns: int | None = None) -> None:
+        """sense_timeout_ns: how long without a sense message before a real-time loop stops
+        safely; `SENSE_TIMEOUT_PERIODS` periods when None."""
+        if sense_timeout_ns is None:
+            sense_timeout_ns = SENSE_TIMEOUT_PERIODS * period_ns
+        if period_ns <= 0 or sense_timeout_ns <= 0:
+            raise ValueError(
+                f"period and sense time-out must be positive: {period_ns}, {sense_timeout_ns}"
+            )
         self.period_ns = period_ns
+        self.sense_timeout_ns = sense_timeout_ns
         self.timing = LoopTiming(period_ns)
         self.lockstep = False
+        self.safe_stopped = False
+        """Whether the loop is in a safe stop now."""
+        self.safe_stops = 0
+        """Safe stops entered since start."""
         self._last: _Sensed | None = None
         self._pending: _Sensed | None = None
         self._next_deadline_ns = 0
         self._last_start_ns: int | None = None
+        self._resume = False
 
     @property
     def has_time(self) -> bool:
@@ -99,8 +137,16 @@ class TickScheduler:
     ) -> None:
         """A sense message was applied to the pins (messages in arrival order)."""
         sensed = _Sensed(t_ns, tick, radio_frames, arrival_mono_ns)
-        if self._last is None:
+        previous = self._last
+        if previous is None:
             self._next_deadline_ns = arrival_mono_ns
+        elif self.safe_stopped or (
+            not lockstep and arrival_mono_ns - previous.arrival_mono_ns > self.sense_timeout_ns
+        ):
+            self._next_deadline_ns = arrival_mono_ns  # start afresh: no burst of late ticks
+            self._last_start_ns = None
+            self._resume = True
+            self.safe_stopped = False
         self._last = sensed
         self.lockstep = lockstep
         self._pending = sensed if lockstep else None
@@ -111,7 +157,7 @@ class TickScheduler:
             return None
         return self._last.t_ns + (mono_now_ns - self._last.arrival_mono_ns)
 
-    def poll(self, mono_now_ns: int, frames_queued: int) -> Wait | RunTick:
+    def poll(self, mono_now_ns: int, frames_queued: int) -> Wait | RunTick | SafeStop:
         if self._last is None:
             return Wait(IDLE_WAIT_S)
         if self.lockstep:
@@ -119,16 +165,28 @@ class TickScheduler:
             if pending is None or frames_queued < pending.radio_frames:
                 return Wait(IDLE_WAIT_S)
             self._pending = None
-            return RunTick(pending.t_ns, pending.tick, mono_now_ns)
+            resumed, self._resume = self._resume, False
+            return RunTick(pending.t_ns, pending.tick, mono_now_ns, resumed)
         if mono_now_ns < self._next_deadline_ns:
             return Wait((self._next_deadline_ns - mono_now_ns) / NS_PER_S)
-        sim_now = self.sim_time_ns(mono_now_ns)
-        assert sim_now is not None
-        return RunTick(sim_now, 0, mono_now_ns)
+        sim_now = self._last.t_ns + (mono_now_ns - self._last.arrival_mono_ns)
+        if mono_now_ns - self._last.arrival_mono_ns > self.sense_timeout_ns:
+            entered = not self.safe_stopped
+            if entered:
+                self.safe_stopped = True
+                self.safe_stops += 1
+            return SafeStop(sim_now, mono_now_ns, entered)
+        resumed, self._resume = self._resume, False
+        return RunTick(sim_now, 0, mono_now_ns, resumed)
 
-    def finished(self, tick: RunTick, end_mono_ns: int) -> None:
-        """A real-time tick ended: record its timing and set the next deadline."""
+    def finished(self, tick: RunTick | SafeStop, end_mono_ns: int) -> None:
+        """A real-time tick (or safe-stop period) ended: record its timing and set the next
+        deadline.  Safe-stop periods are not control ticks and leave the timing alone."""
         if self.lockstep:
+            return
+        if isinstance(tick, SafeStop):
+            self._last_start_ns = None
+            self._next_deadline_ns = max(self._next_deadline_ns, end_mono_ns) + self.period_ns
             return
         start = tick.started_mono_ns
         deadline = self._next_deadline_ns

@@ -16,11 +16,15 @@ import pytest
 from robot_firmware.control.controller import ControllerParams
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, RobotMission
-from robot_firmware.fpga.fabric import Fabric, FabricConfig
-from robot_firmware.net.frames import key_from_secret
+from robot_firmware.fpga.fabric import Actuation, Fabric, FabricConfig
+from robot_firmware.net.frames import RadioFrame, Role, encode, initial_sequence, key_from_secret
+from robot_firmware.net.wire import FixSample, SenseMessage, encode_sense, parse_act
+from robot_firmware.pins import apply_sense
+from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler
 from services.sim.batch import run_batch
-from services.sim.firmware_swarm import FirmwareSwarm
+from services.sim.firmware_swarm import FirmwareRobot, FirmwareSwarm
 from swarm_config.scenario import Scenario, load_rule_base, load_scenario
+from tests.fuzz.processes import make_robot, robot_credentials
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -235,3 +239,211 @@ def test_reported_sonar_echoes_lie_on_the_surfaces_the_sonar_heard() -> None:
     assert off.size > 500, "the robots should hear the obstacle and each other"
     assert np.all(off <= np.array(allowed_m)), np.max(off - np.array(allowed_m))
     assert np.mean(off < 0.02) > 0.5  # most echoes come from near the beam axis
+
+
+MS = 1_000_000
+MOTORS_OFF_WITHIN_NS = 200 * MS
+"""After the last sense message, every PWM output reads 0 within this much fabric time."""
+
+
+def _driving_follower() -> tuple[FirmwareRobot, int]:
+    """robot2 of the paper scenario two seconds into the run, its wheels driven, and the
+    simulation time of its last sense message."""
+    swarm = FirmwareSwarm(load_scenario(PAPER), KEY)
+    for _ in range(200):
+        swarm.step()
+    robot = swarm.robots[1]
+    assert any(d != 0.0 for d in robot.fabric.hw_read_actuation().duty)
+    return robot, swarm.world.t_ns - swarm.period_ns
+
+
+def _run_without_sense(robot: FirmwareRobot, sim_t0_ns: int, duration_ns: int) -> list[Actuation]:
+    """The robot process's loop after its last sense message (at monotonic 0), on a fake
+    clock: the fabric runs in 1 ms steps and the scheduler's decisions run at their
+    instants.  Returns the PWM pins at every millisecond."""
+    period_ns = robot.firmware.mission.params.control_period_s * 1e9
+    scheduler = TickScheduler(round(period_ns))
+    scheduler.sensed(sim_t0_ns, tick=0, lockstep=False, radio_frames=0, arrival_mono_ns=0)
+    pins = []
+    for now_ns in range(0, duration_ns, MS):
+        decision = scheduler.poll(now_ns, 0)
+        if isinstance(decision, RunTick):
+            robot.firmware.control_tick(decision.sim_time_ns)
+        elif isinstance(decision, SafeStop):
+            robot.firmware.safe_stop()
+        if isinstance(decision, RunTick | SafeStop):
+            scheduler.finished(decision, now_ns)
+        robot.fabric.tick(MS)
+        pins.append(robot.fabric.hw_read_actuation())
+    return pins
+
+
+def _first_ms(pins: list[Actuation], cut: bool) -> int:
+    """The first millisecond from which every output reads duty 0 to the end, and is either
+    disabled (cut=False: the driver's safe stop) or cut by the watchdog (cut=True)."""
+
+    def off(a: Actuation) -> bool:
+        return a.duty == (0.0,) * 4 and (a.watchdog_expired if cut else not a.any_enabled)
+
+    for ms in range(len(pins)):
+        if all(off(a) for a in pins[ms:]):
+            return ms
+    raise AssertionError("the motors never stayed off")
+
+
+def test_motors_are_off_within_200_ms_of_the_last_sense_message() -> None:
+    robot, sim_t0_ns = _driving_follower()
+    pins = _run_without_sense(robot, sim_t0_ns, 400 * MS)
+    assert any(d != 0.0 for d in pins[50].duty), "still driving before the sense time-out"
+    driver_off_ms = _first_ms(pins, cut=False)
+    watchdog_cut_ms = _first_ms(pins, cut=True)
+    print(
+        f"\nafter the last sense message: outputs disabled at {driver_off_ms} ms, watchdog "
+        f"cut at {watchdog_cut_ms} ms (time-out {robot.firmware.mission.watchdog_timeout_ms} ms)"
+    )
+    assert driver_off_ms * MS <= MOTORS_OFF_WITHIN_NS
+    assert watchdog_cut_ms * MS <= MOTORS_OFF_WITHIN_NS
+    assert robot.firmware.safe_stopped
+
+
+def test_the_watchdog_cuts_the_motors_when_the_safe_stop_writes_are_lost() -> None:
+    """The motor driver's writes never reach the PWM (a stuck bus, a firmware bug): the
+    watchdog, no longer kicked, still cuts every output in time."""
+    robot, sim_t0_ns = _driving_follower()
+    robot.firmware.drivers.motors.disable = lambda: None  # type: ignore[method-assign]
+    pins = _run_without_sense(robot, sim_t0_ns, 400 * MS)
+    watchdog_cut_ms = _first_ms(pins, cut=True)
+    print(f"\nmotor writes lost: watchdog cut at {watchdog_cut_ms} ms after the last sense")
+    assert any(a.any_enabled for a in pins[: watchdog_cut_ms - 1])  # the driver did not stop it
+    assert watchdog_cut_ms * MS <= MOTORS_OFF_WITHIN_NS
+
+
+@pytest.fixture(scope="module")
+def _robot_credentials(tmp_path_factory: pytest.TempPathFactory) -> None:
+    robot_credentials(tmp_path_factory.mktemp("credentials"))
+
+
+def _sense_with_fix(t_ns: int, sonar_count: int) -> bytes:
+    return encode_sense(
+        SenseMessage(
+            encoder_counts=(0, 0, 0, 0),
+            sonar_echo_times_s=(None,) * sonar_count,
+            fix=FixSample(0.0, 0.0, 0.0, t_ns),
+            t_ns=t_ns,
+        )
+    )
+
+
+@pytest.mark.usefixtures("_robot_credentials")
+def test_robot_process_publishes_a_zero_duty_act_message_when_sense_stops_and_resumes() -> None:
+    """The robot process's own loop body, on a fake monotonic clock, publishing to kept
+    publishers: sense every 10 ms for 300 ms, then none for 300 ms, then sense again."""
+    robot = make_robot("robot1")  # the leader drives its trajectory as soon as it has a fix
+    process = robot.process
+    sonar_count = process.mission.sonar_count
+    acts_at: list[tuple[int, int]] = []  # (monotonic ms, index of the act message)
+
+    def period(now_ms: int, sense: bool) -> None:
+        now_ns = now_ms * MS
+        if sense:
+            payload = _sense_with_fix(1_000 * MS + now_ns, sonar_count)
+            process._sense.append((payload, now_ns))
+        process._take_sense()
+        decision = process.scheduler.poll(now_ns, len(process._frames))
+        if isinstance(decision, RunTick | SafeStop):
+            process._run_period(decision, robot.act, robot.radio, robot.telemetry)
+            process.scheduler.finished(decision, now_ns)
+            acts_at.append((now_ms, len(robot.act.payloads) - 1))
+
+    for now_ms in range(0, 300, 10):
+        period(now_ms, sense=True)
+    driving = parse_act(robot.act.payloads[-1])
+    assert not isinstance(driving, str) and any(d != 0.0 for d in driving.duty), driving
+    for now_ms in range(300, 600, 10):
+        period(now_ms, sense=False)
+    acts = {ms: parse_act(robot.act.payloads[i]) for ms, i in acts_at}
+    stopped = [a for ms, a in acts.items() if 290 + 200 <= ms < 600]
+    assert stopped and all(
+        a.duty == (0.0,) * 4 and not any(a.enabled) for a in stopped if not isinstance(a, str)
+    ), stopped
+    assert any(not isinstance(a, str) and a.watchdog_expired for a in stopped)
+    assert process.scheduler.safe_stopped and process.firmware.safe_stopped
+    stopped_telemetry = process.telemetry(0)
+    assert stopped_telemetry.safe_stopped and stopped_telemetry.safe_stops == 1
+
+    period(600, sense=True)  # the world is back
+    assert not process.scheduler.safe_stopped and not process.firmware.safe_stopped
+    for now_ms in range(610, 700, 10):
+        period(now_ms, sense=True)
+    back = parse_act(robot.act.payloads[-1])
+    assert not isinstance(back, str)
+    assert all(back.enabled) and not back.watchdog_expired and any(d != 0.0 for d in back.duty)
+
+
+def _lone_firmware(name: str = "robot2") -> tuple[Fabric, Firmware]:
+    scenario = load_scenario(PAPER)
+    fabric = Fabric(FabricConfig(n_sonar=12))
+    drivers = Drivers.attach(fabric.bus, 12)
+    firmware = Firmware(
+        RobotMission.from_scenario(scenario, name, load_rule_base(scenario)), drivers, KEY
+    )
+    firmware.boot(fabric.tick)
+    return fabric, firmware
+
+
+def test_a_robot_with_no_fix_broadcasts_nothing() -> None:
+    fabric, firmware = _lone_firmware()
+    period_ns = 10 * MS
+    no_fix = SenseMessage(encoder_counts=(0,) * 4, sonar_echo_times_s=(None,) * 12, fix=None)
+    for tick in range(100):  # a second: five broadcast periods
+        apply_sense(fabric, no_fix)
+        assert firmware.control_tick(tick * period_ns).frame is None
+        fabric.tick(period_ns)
+    assert not firmware.state.estimator.localised and firmware.frames_sent == 0
+    fix = FixSample(1.0, 2.0, 0.5, 100 * period_ns)
+    apply_sense(fabric, SenseMessage((0,) * 4, (None,) * 12, fix))
+    frames = []
+    for tick in range(100, 110):
+        frames.append(firmware.control_tick(tick * period_ns).frame)
+        fabric.tick(period_ns)
+    assert firmware.state.estimator.localised
+    assert frames[0] is not None  # the first tick with a fix broadcasts at once
+
+
+def _peer_frame(localised: bool, sequence: int, t_ns: int) -> bytes:
+    frame = RadioFrame(
+        role=Role.LEADER,
+        sender_id=0,
+        sequence=sequence,
+        timestamp_ns=t_ns,
+        x_m=0.0,
+        y_m=0.0,
+        theta_rad=0.0,
+        xdot_mps=0.0,
+        ydot_mps=0.0,
+        thetadot_radps=0.0,
+        localised=localised,
+    )
+    return encode(frame, KEY)
+
+
+def test_a_frame_from_an_unlocalised_sender_does_not_enter_the_peer_table() -> None:
+    _, firmware = _lone_firmware()
+    t_ns = 1_000 * MS
+    sequence = initial_sequence(t_ns)
+    assert not firmware.receive(_peer_frame(False, sequence, t_ns), t_ns)
+    assert firmware.unlocalised_peer_frames == 1
+    assert not np.isfinite(firmware.peer_stamp_s[0]) and not firmware.peer_is_leader[0]
+    assert firmware.receive(_peer_frame(True, sequence + 1, t_ns + 50 * MS), t_ns + 50 * MS)
+    assert firmware.peer_stamp_s[0] == pytest.approx(1.05)
+    assert firmware.unlocalised_peer_frames == 1
+
+
+def test_resume_drops_peer_state_outside_the_decoders_age_window() -> None:
+    _, firmware = _lone_firmware()
+    t_ns = 1_000 * MS
+    assert firmware.receive(_peer_frame(True, initial_sequence(t_ns), t_ns), t_ns)
+    firmware.resume(t_ns + firmware.decoder.max_age_ns // 2)
+    assert np.isfinite(firmware.peer_stamp_s[0])  # still young enough
+    firmware.resume(t_ns + firmware.decoder.max_age_ns + MS)
+    assert not np.isfinite(firmware.peer_stamp_s[0])

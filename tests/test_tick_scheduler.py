@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import pytest
 
-from robot_firmware.tick_scheduler import RESYNC_PERIODS, RunTick, TickScheduler, Wait
+from robot_firmware.tick_scheduler import (
+    RESYNC_PERIODS,
+    SENSE_TIMEOUT_PERIODS,
+    RunTick,
+    SafeStop,
+    TickScheduler,
+    Wait,
+)
 
 PERIOD_NS = 10_000_000
 MS = 1_000_000
@@ -117,3 +124,105 @@ def test_a_real_time_message_after_lockstep_switches_the_mode() -> None:
     real_time(scheduler, t_ns=50 * MS, arrival_ns=10 * MS)
     tick = scheduler.poll(10 * MS, 0)
     assert isinstance(tick, RunTick) and tick.tick == 0 and tick.sim_time_ns == 50 * MS
+
+
+SENSE_TIMEOUT_NS = SENSE_TIMEOUT_PERIODS * PERIOD_NS
+
+
+def run_until_safe_stop(scheduler: TickScheduler, sense_every_ms: int, last_sense_ms: int) -> int:
+    """Real-time ticks every period with sense messages every `sense_every_ms` until
+    `last_sense_ms`, then none; returns the monotonic time (ms) of the first `SafeStop`."""
+    for now_ms in range(0, 10_000, 10):
+        if now_ms <= last_sense_ms and now_ms % sense_every_ms == 0:
+            real_time(scheduler, t_ns=(5_000 + now_ms) * MS, arrival_ns=now_ms * MS)
+        decision = scheduler.poll(now_ms * MS, 0)
+        if isinstance(decision, SafeStop):
+            assert decision.entered
+            return now_ms
+        assert isinstance(decision, RunTick), (now_ms, decision)
+        assert not decision.resumed
+        scheduler.finished(decision, now_ms * MS + MS)
+    raise AssertionError("no safe stop")
+
+
+def test_real_time_loop_stops_safely_when_sense_messages_stop() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    assert scheduler.sense_timeout_ns == 100 * MS
+    stop_ms = run_until_safe_stop(scheduler, sense_every_ms=10, last_sense_ms=500)
+    # the newest message is more than the time-out old at the first deadline after it
+    assert 500 + 100 < stop_ms <= 500 + 100 + 10
+    assert scheduler.safe_stopped and scheduler.safe_stops == 1
+
+
+def test_a_safe_stop_repeats_every_period_until_sense_messages_come_back() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    stop_ms = run_until_safe_stop(scheduler, sense_every_ms=10, last_sense_ms=100)
+    first = scheduler.poll(stop_ms * MS, 0)
+    assert isinstance(first, SafeStop)
+    scheduler.finished(first, stop_ms * MS + MS)
+    early = scheduler.poll(stop_ms * MS + 5 * MS, 0)
+    assert isinstance(early, Wait)
+    again = scheduler.poll(stop_ms * MS + 11 * MS, 0)
+    assert isinstance(again, SafeStop) and not again.entered
+    assert again.sim_time_ns == (5_000 + 100 + stop_ms + 11 - 100) * MS  # time still runs
+    assert scheduler.safe_stops == 1
+    assert scheduler.timing.deadline_misses == 0  # safe-stop periods are not ticks
+
+
+def test_after_a_safe_stop_the_first_tick_uses_the_new_message_and_is_marked_resumed() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    stop_ms = run_until_safe_stop(scheduler, sense_every_ms=10, last_sense_ms=100)
+    stopped = scheduler.poll(stop_ms * MS, 0)
+    assert isinstance(stopped, SafeStop)
+    scheduler.finished(stopped, stop_ms * MS)
+    back_ms = stop_ms + 3_000  # the world came back 3 s later, at simulation time 20 s
+    real_time(scheduler, t_ns=20_000 * MS, arrival_ns=back_ms * MS)
+    assert not scheduler.safe_stopped
+    tick = scheduler.poll(back_ms * MS, 0)
+    assert tick == RunTick(20_000 * MS, 0, back_ms * MS, resumed=True)
+    scheduler.finished(tick, back_ms * MS + MS)
+    following = scheduler.poll(back_ms * MS + 10 * MS, 0)
+    assert isinstance(following, RunTick) and not following.resumed
+    scheduler.finished(following, back_ms * MS + 11 * MS)
+    assert scheduler.timing.ticks == tick_count_before_stop(stop_ms) + 1
+    assert scheduler.timing.deadline_misses == 0  # the gap is not a burst of misses
+
+
+def tick_count_before_stop(stop_ms: int) -> int:
+    """Ticks recorded by `run_until_safe_stop` before `stop_ms` (the first one has no period)."""
+    return stop_ms // 10 - 1
+
+
+def test_a_frozen_loop_with_messages_waiting_resynchronises_without_a_burst() -> None:
+    """SIGSTOP, then SIGCONT: the messages that were waiting arrive at once, long after the
+    previous one; the loop does not run the ticks it missed, and marks the next one resumed."""
+    scheduler = TickScheduler(PERIOD_NS)
+    real_time(scheduler, 0, 0)
+    run_ticks(scheduler, [(0, 1), (10, 11)])
+    thawed_ms = 5_000
+    for t_ms in (15, 25, 35):  # queued before the freeze, applied on waking
+        real_time(scheduler, t_ns=t_ms * MS, arrival_ns=thawed_ms * MS)
+    tick = scheduler.poll(thawed_ms * MS, 0)
+    assert tick == RunTick(35 * MS, 0, thawed_ms * MS, resumed=True)
+    scheduler.finished(tick, thawed_ms * MS + MS)
+    assert isinstance(scheduler.poll(thawed_ms * MS + 2 * MS, 0), Wait)  # no burst
+    assert scheduler.timing.deadline_misses == 0
+
+
+def test_lockstep_has_no_sense_time_out() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    lockstep(scheduler, tick=1, frames=0, arrival_ns=0)
+    tick = scheduler.poll(0, 0)
+    assert isinstance(tick, RunTick)
+    scheduler.finished(tick, MS)
+    assert scheduler.poll(60_000 * MS, 0) == Wait(0.05)  # a minute without the world
+    lockstep(scheduler, tick=2, frames=0, arrival_ns=60_000 * MS)
+    tick = scheduler.poll(60_000 * MS, 0)
+    assert tick == RunTick(2 * PERIOD_NS, 2, 60_000 * MS, resumed=False)
+    assert not scheduler.safe_stopped
+
+
+@pytest.mark.parametrize("timeout_ns", [0, -1])
+def test_a_sense_time_out_must_be_positive(timeout_ns: int) -> None:
+    with pytest.raises(ValueError, match="positive"):
+        TickScheduler(PERIOD_NS, sense_timeout_ns=timeout_ns)

@@ -13,6 +13,8 @@ a wheel changes direction, the write that lowers the drive goes first (DUTY_TICK
 the magnitude falls, CTRL when it rises), so the output never passes through the old
 magnitude in the new polarity or the new magnitude in the old one.
 
+`disable` writes duty 0 and clears CTRL.EN on every wheel (the firmware's safe stop).
+
 A refused write is counted in `bus_errors` and forgets the shadow of that register, so
 the next `set_duty` writes it again. Non-finite duties are taken as 0.
 """
@@ -112,6 +114,14 @@ class MotorDriver:
     def stop(self) -> None:
         """Duty 0 on every wheel (outputs stay enabled, at zero drive)."""
         self.set_duty([0.0] * self.wheel_count)
+
+    def disable(self) -> None:
+        """Duty 0 and CTRL.EN cleared on every wheel: the outputs are off until the next
+        `set_duty`, which enables them again."""
+        for wheel in range(self.wheel_count):
+            self._write_duty(wheel, 0)
+            self._write_ctrl(wheel, 0)
+        self.last_duty = (0.0,) * self.wheel_count
 
     # -- internals -------------------------------------------------------------------
 

@@ -111,6 +111,12 @@ class TelemetryMessage(Message):
     """Sense messages refused, all reasons."""
     dropped_sense: dict[str, int] = Field(default_factory=dict)
     """Sense messages refused per reason (robot_firmware/net/wire.py `WireDropReason`)."""
+    unlocalised_peer_frames: int = 0
+    """Authentic radio frames not used because their sender had no fix yet."""
+    safe_stopped: bool = False
+    """No sense message for the sense time-out: motors off, watchdog no longer kicked."""
+    safe_stops: int = 0
+    """Safe stops entered since the robot started."""
     timing: LoopTimingReport | None = None
     sonar_range_m: tuple[float | None, ...] = ()
     """Per transducer: the gap to the nearest echo, None when nothing was heard."""
