@@ -18,19 +18,23 @@ s < s' (the lower index wins a tie).  A robot always follows the best claim it h
 is not known to be gone.  The robot itself is always live.
 
 **Leader lost.**  The leader a robot follows is lost when its token is gone, or when no claim of
-it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: its
-boot, the term's adoption, or its last claim).  While the leader is lost, the live robot with
-the lowest index (the lost leader excluded) raises the term to one above the highest it has
-seen and leads; the others wait for its claim.  If that candidate dies too it stops being live
-after the same timeout and the next one takes over, so a claim follows a death within about
-`leader_timeout_s` plus one broadcast period (0.5 s + 50 ms at the defaults).
+it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: the
+term's adoption or the leader's last claim; a leader not heard since this robot booted gets
+`boot_patience_s`, since the robots of a swarm do not boot at the same instant).  While the
+leader is lost, the live robot with the lowest index (the lost leader excluded) raises the term
+to one above the highest it has seen and leads; the others wait for its claim.  If that
+candidate dies too, it stops being live after the same time-out and the next one takes over.
+So a claim follows a death within `leader_timeout_s` plus one broadcast period (0.5 s + 50 ms
+at the defaults), or at the next tick when the runtime reports the token gone.
 
 Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 
 | state           | event                                            | next            | term    |
 |-----------------|--------------------------------------------------|-----------------|---------|
-| boot            | designated leader, boot at t < `start_window_s`  | LEADING         | 0       |
-| boot            | any other robot, or a later boot (a restart)     | FOLLOWING(d|-)  | 0       |
+| boot            | designated leader                                | FOLLOWING(None) | 0       |
+| boot            | any other robot                                  | FOLLOWING(d)    | 0       |
+| FOLLOWING(None) | `update`: designated leader, `listen_s` after    | LEADING         | 0       |
+|                 | boot, still term 0 and no claim heard            |                 |         |
 | FOLLOWING(L)    | claim (T, s) that beats (term, L), or L None and | FOLLOWING(s)    | T       |
 |                 | T >= term                                        |                 |         |
 | FOLLOWING(L)    | claim of L in the current term                   | FOLLOWING(L)    | same    |
@@ -40,14 +44,19 @@ Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 | FOLLOWING(L)    | `update`: L lost, a lower index is live          | FOLLOWING(None) | same    |
 | LEADING         | claim (T, s) that beats (term, self)             | FOLLOWING(s)    | T       |
 | LEADING         | claim that does not beat ours                    | LEADING         | same    |
-| any             | `resume` (after a sense gap / a freeze)          | FOLLOWING(None) | same    |
+| any             | `resume` (after a sense gap / a freeze): listens | FOLLOWING(None) | same    |
+|                 | again as at boot                                 |                 |         |
 
-d: the designated leader, expected in term 0.  A designated leader that boots later than
-`start_window_s` is a restart into a running swarm: it boots as a follower in term 0, adopts
-the term it hears and takes the vacated slot (below); it never claims term 0 again.  A robot
-partitioned from the rest that elected itself keeps its term only until it hears a claim that
-beats it (a higher term, or the same term from a lower index): then it follows, so two leaders
-never both act once they hear each other.
+d: the designated leader, expected in term 0.  Every robot boots as a follower in term 0.  The
+designated leader listens for `listen_s` (4 broadcast periods) before it claims term 0: in a
+swarm starting up it hears nothing better and leads; restarted into a running swarm that
+elected another leader, it hears that leader's claim or a later term in the peers' frames,
+follows, and takes the vacated slot (below).  Once a term above 0 was seen it never claims
+term 0 again.
+
+No split brain: a robot partitioned from the rest that elected itself keeps its term only until
+it hears a claim that beats it (a higher term, or the same term from a lower index); then it
+follows, so two leaders never both act once they hear each other.
 
 **Slots.**  The scenario's slots are relative to the leader (eq. 17).  With robot L leading, a
 follower that has a scenario slot keeps it, relative to L; the designated leader, which has no
@@ -73,9 +82,10 @@ class LeadershipParams(BaseModel):
 
     leader_timeout_s: PositiveFloat = 0.5
     """A leader unheard for this long is lost: 10 broadcast periods at 20 Hz."""
-    start_window_s: PositiveFloat = 1.0
-    """Boots before this simulation time are the run's start: the designated leader leads
-    term 0 and the others expect it; a later boot is a restart into a running swarm."""
+    listen_s: PositiveFloat = 0.2
+    """How long the designated leader listens after booting before it claims term 0."""
+    boot_patience_s: PositiveFloat = 3.0
+    """How long a booting robot waits for the first claim of the leader it expects."""
 
 
 class Phase(enum.Enum):
@@ -123,6 +133,10 @@ class Leadership:
     waiting_since_s: float = field(init=False)
     """Since when the current leader has not been heard (boot, adoption or its last claim)."""
     highest_term_seen: int = field(init=False, default=0)
+    claim_heard: bool = field(init=False, default=False)
+    """Whether any peer's claim to lead was heard since boot (or the last `resume`)."""
+    listen_from_s: float = field(init=False, default=0.0)
+    """Boot (or the last `resume`): the designated leader listens `listen_s` from here."""
     peers: list[PeerRecord] = field(init=False)
     changes: list[LeaderChange] = field(init=False, default_factory=list)
 
@@ -133,12 +147,12 @@ class Leadership:
                 f"in 0..{self.count - 1}"
             )
         self.peers = [PeerRecord() for _ in range(self.count)]
-        self.waiting_since_s = self.boot_s
-        starting = self.boot_s < self.params.start_window_s
-        if self.index == self.designated_leader and starting:
-            self._set(Phase.LEADING, self.index, 0, self.boot_s, "designated leader at start")
-        elif starting:
+        p = self.params
+        self.waiting_since_s = self.boot_s + max(p.boot_patience_s - p.leader_timeout_s, 0.0)
+        if self.index != self.designated_leader:
             self.leader = self.designated_leader
+        self.claim_heard = False
+        self.listen_from_s = self.boot_s
 
     @property
     def is_leader(self) -> bool:
@@ -156,6 +170,7 @@ class Leadership:
         peer.claims_lead = claims_lead
         self.highest_term_seen = max(self.highest_term_seen, term)
         if claims_lead:
+            self.claim_heard = True
             self._hear_claim(sender, term, t_s)
         elif term > self.term:
             self._set(Phase.FOLLOWING, None, term, t_s, f"robot {sender} is in a later term")
@@ -170,12 +185,20 @@ class Leadership:
 
     def resume(self, t_s: float) -> None:
         """After a gap in the sense messages (a frozen process, a world restart): do not act
-        on who led before; follow whoever claims next, keeping the term."""
+        on who led before; follow whoever claims next, keeping the term.  The designated
+        leader listens again before it claims term 0."""
+        self.claim_heard = False
+        self.listen_from_s = t_s
         self._set(Phase.FOLLOWING, None, self.term, t_s, "resumed after a gap")
 
     def update(self, t_s: float) -> None:
         """Run the time-outs at `t_s`: detect a lost leader and elect (once per tick)."""
-        if self.is_leader or not self._leader_lost(t_s):
+        if self.is_leader:
+            return
+        if self._designated_claim_due(t_s):
+            self._set(Phase.LEADING, self.index, 0, t_s, "designated leader, term 0 unclaimed")
+            return
+        if not self._leader_lost(t_s):
             return
         live = [i for i in range(self.count) if i != self.leader and self.is_live(i, t_s)]
         if min(live) == self.index:
@@ -203,6 +226,16 @@ class Leadership:
         return self.leader
 
     # -- internals -----------------------------------------------------------------------
+
+    def _designated_claim_due(self, t_s: float) -> bool:
+        return (
+            self.index == self.designated_leader
+            and self.term == 0
+            and self.highest_term_seen == 0
+            and self.leader is None
+            and not self.claim_heard
+            and t_s >= self.listen_from_s + self.params.listen_s
+        )
 
     def _leader_lost(self, t_s: float) -> bool:
         if self.leader is not None and self.peers[self.leader].token_gone:

@@ -15,7 +15,7 @@ from robot_firmware.leadership import (
     slot_of,
 )
 
-PARAMS = LeadershipParams(leader_timeout_s=0.5, start_window_s=1.0)
+PARAMS = LeadershipParams(leader_timeout_s=0.5, listen_s=0.2, boot_patience_s=3.0)
 PERIOD_S = 0.05  # broadcast period at 20 Hz
 TICK_S = 0.01
 
@@ -32,21 +32,70 @@ def following(machine: Leadership, leader: int | None, term: int) -> bool:
 # -- boot ----------------------------------------------------------------------------------
 
 
-def test_designated_leader_booting_at_the_start_leads_term_0() -> None:
-    leader = robot(0)
-    assert leader.is_leader and leader.term == 0 and leader.acting_leader(0.0) == 0
+def robot_led(index: int, boot_s: float = 0.0) -> Leadership:
+    """A machine past its boot listening, with robot 0 leading term 0."""
+    machine = robot(index, boot_s)
+    if index == 0:
+        machine.update(boot_s + PARAMS.listen_s)
+    else:
+        machine.hear(0, 0, True, boot_s + PARAMS.listen_s)
+    return machine
 
 
-def test_followers_booting_at_the_start_expect_the_designated_leader() -> None:
+def test_designated_leader_listens_then_leads_term_0() -> None:
+    leader = robot(0, boot_s=1.0)
+    assert following(leader, None, 0)
+    leader.hear(1, 0, False, 1.05)
+    leader.update(1.19)
+    assert not leader.is_leader
+    leader.update(1.2)
+    assert leader.is_leader and leader.term == 0 and leader.acting_leader(1.2) == 0
+
+
+def test_followers_booting_expect_the_designated_leader() -> None:
     follower = robot(2, designated=1)
     assert following(follower, 1, 0)
     assert follower.acting_leader(0.1) == 1
 
 
-def test_designated_leader_restarting_later_boots_as_a_follower_with_term_0() -> None:
+def test_followers_give_a_leader_never_heard_the_boot_patience() -> None:
+    follower = robot(1, boot_s=10.0)
+    follower.update(12.9)
+    assert following(follower, 0, 0)
+    follower.update(13.01)
+    assert follower.is_leader and follower.term == 1
+
+
+def test_designated_leader_restarted_into_an_elected_swarm_follows() -> None:
     returning = robot(0, boot_s=40.0)
-    assert following(returning, None, 0)
-    assert returning.acting_leader(40.0) is None
+    returning.hear(2, 1, False, 40.05)
+    returning.hear(1, 1, True, 40.1)
+    returning.update(40.5)
+    assert following(returning, 1, 1)
+
+
+def test_designated_leader_hearing_only_a_later_term_never_claims_term_0() -> None:
+    returning = robot(0, boot_s=40.0)
+    returning.hear(2, 1, False, 40.05)
+    returning.update(40.3)
+    assert following(returning, None, 1)
+
+
+def test_designated_leader_restarted_before_any_election_leads_term_0_again() -> None:
+    returning = robot(0, boot_s=25.2)
+    returning.hear(1, 0, False, 25.25)
+    returning.update(25.45)
+    assert returning.is_leader and returning.term == 0
+
+
+def test_resumed_designated_leader_listens_again_before_it_claims() -> None:
+    leader = robot_led(0)
+    leader.resume(5.0)
+    leader.update(5.1)
+    assert not leader.is_leader
+    leader.hear(1, 1, True, 5.15)
+    leader.update(5.3)
+    assert following(leader, 1, 1)
 
 
 def test_index_outside_the_swarm_is_refused() -> None:
@@ -113,21 +162,20 @@ def test_frame_with_a_later_term_and_no_claim_drops_the_known_leader() -> None:
 
 
 def test_leader_steps_down_on_a_better_claim() -> None:
-    leader = robot(1, boot_s=10.0)
-    leader.hear(0, 1, False, 10.0)  # robot 0 is live, so robot 1 waits
+    leader = robot_led(0)
     leader.hear(2, 3, True, 10.1)
     assert following(leader, 2, 3)
 
 
 def test_leader_keeps_the_lead_against_a_weaker_claim() -> None:
-    leader = robot(0)
+    leader = robot_led(0)
     leader.hear(1, 0, True, 0.5)
     leader.hear(2, 0, True, 0.5)
     assert leader.is_leader and leader.term == 0
 
 
 def test_leader_steps_down_on_a_later_term_without_a_claim() -> None:
-    leader = robot(0)
+    leader = robot_led(0)
     leader.hear(2, 2, False, 1.0)
     assert following(leader, None, 2)
 
@@ -141,7 +189,7 @@ def test_own_and_unknown_senders_are_ignored() -> None:
 
 
 def test_resume_forgets_the_leader_but_keeps_the_term() -> None:
-    leader = robot(0)
+    leader = robot_led(0)
     leader.hear(1, 0, False, 0.0)
     leader.resume(3.0)
     assert following(leader, None, 0)
@@ -212,10 +260,10 @@ def test_token_back_without_a_claim_elects_nobody_new() -> None:
 
 def test_follower_waits_for_a_live_lower_index_then_takes_over_if_it_dies_too() -> None:
     follower = robot(2, boot_s=10.0)
-    follower.hear(1, 0, False, 10.3)
-    follower.update(10.6)  # leader 0 never heard, 1 is live and lower: wait
+    follower.hear(1, 0, False, 12.8)
+    follower.update(13.1)  # leader 0 never heard, 1 is live and lower: wait
     assert following(follower, None, 0)
-    follower.update(10.9)  # 1 silent as well now
+    follower.update(13.4)  # 1 silent as well now
     assert follower.is_leader and follower.term == 1
 
 
