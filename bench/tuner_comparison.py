@@ -21,7 +21,8 @@ Results (every run's best fitness, best vector and convergence history) go to a 
 the median curves to a PNG. Runs are spread over ``--jobs`` processes. Every finished run is
 appended at once to ``<json>.runs.jsonl``; started again with the same settings, the script
 takes the runs found there and runs only the rest, so a killed benchmark loses at most the
-runs in progress (``--fresh`` ignores them). The defaults (5 algorithms, 10 seeds, 600
+runs in progress (``--fresh`` ignores them; ``--finished-only`` runs nothing and reports the
+seeds already finished by every algorithm). The defaults (5 algorithms, 10 seeds, 600
 evaluations of 30 s, all cores) take about 30 minutes on an idle 2-core machine.
 
     .venv/bin/python bench/tuner_comparison.py [--seeds 10] [--budget 600] [--duration 30]
@@ -181,6 +182,12 @@ def main() -> None:
         action="store_true",
         help="ignore runs finished earlier (<json>.runs.jsonl) and run every one again",
     )
+    parser.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="run nothing: report the seeds whose runs of every algorithm are already in "
+        "<json>.runs.jsonl (a partial table while a long comparison is still running)",
+    )
     args = parser.parse_args()
     algorithms = [a.strip() for a in args.algos.split(",") if a.strip()]
     unknown = [a for a in algorithms if a not in ALGORITHMS]
@@ -199,6 +206,11 @@ def main() -> None:
     if args.fresh:
         checkpoint_path.unlink(missing_ok=True)
     finished = load_finished_runs(checkpoint_path, settings)
+    if args.finished_only:
+        seeds = [s for s in seeds if all((a, s) in finished for a in algorithms)]
+        if not seeds:
+            parser.error(f"no seed has finished runs of every algorithm in {checkpoint_path}")
+        tasks = [(a, s) for s in seeds for a in algorithms]
     pending = [task for task in tasks if task not in finished]
     if len(pending) < len(tasks):
         print(f"# {len(tasks) - len(pending)} runs taken from {checkpoint_path}", flush=True)
