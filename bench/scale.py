@@ -24,6 +24,7 @@ median robot misses more than 20 % stops the sweep.  Figures are the median of `
 is killed at the end, and the router listens on a free 127.0.0.1 port.
 
     .venv/bin/python bench/scale.py [--sizes 3,6,12] [--duration 30] [--repeats R] [--json FILE]
+                                    [--keep DIR]
 """
 
 from __future__ import annotations
@@ -303,6 +304,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--seed", type=int, default=0, help="the generated scenarios' seed")
     parser.add_argument("--json", metavar="FILE", help="also write every run's figures here")
+    parser.add_argument(
+        "--keep", metavar="DIR", help="keep each run's scenario, logs and summary.json in DIR"
+    )
     args = parser.parse_args(argv)
     print("# real-time scale: swarm up --no-dashboard, generated wedge of N robots")
     for line in machine_lines():
@@ -321,9 +325,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         repeats = args.repeats or (3 if robots <= CHEAP_SIZE else 1)
         runs = []
         for k in range(repeats):
-            with tempfile.TemporaryDirectory(prefix=f"scale-{robots}-") as work:
+            with tempfile.TemporaryDirectory(prefix=f"scale-{robots}-") as scratch:
+                work = Path(args.keep) / f"n{robots}-run{k + 1}" if args.keep else Path(scratch)
+                work.mkdir(parents=True, exist_ok=True)
                 try:
-                    runs.append(run_once(robots, args.duration, args.seed + k, Path(work)))
+                    runs.append(run_once(robots, args.duration, args.seed + k, work))
                 except RuntimeError as exc:
                     print(f"# N = {robots}, run {k + 1}: {exc}", file=sys.stderr)
             if runs and summarise(runs).clearly_fails:
