@@ -31,7 +31,8 @@ Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 
 | state           | event                                            | next            | term    |
 |-----------------|--------------------------------------------------|-----------------|---------|
-| boot            | designated leader                                | FOLLOWING(None) | 0       |
+| boot at t = 0   | designated leader (the run's start)              | LEADING         | 0       |
+| boot            | designated leader, later                         | FOLLOWING(None) | 0       |
 | boot            | any other robot                                  | FOLLOWING(d)    | 0       |
 | FOLLOWING(None) | `update`: designated leader, `listen_s` after    | LEADING         | 0       |
 |                 | boot, still term 0 and no claim heard            |                 |         |
@@ -44,15 +45,18 @@ Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 | FOLLOWING(L)    | `update`: L lost, a lower index is live          | FOLLOWING(None) | same    |
 | LEADING         | claim (T, s) that beats (term, self)             | FOLLOWING(s)    | T       |
 | LEADING         | claim that does not beat ours                    | LEADING         | same    |
-| any             | `resume` (after a sense gap / a freeze): listens | FOLLOWING(None) | same    |
-|                 | again as at boot                                 |                 |         |
+| any             | `resume` after a gap up to `leader_timeout_s`    | unchanged       | same    |
+| any             | `resume` after a longer gap, or time went back:  | FOLLOWING(None) | same    |
+|                 | listens again as at boot                         |                 |         |
 
-d: the designated leader, expected in term 0.  Every robot boots as a follower in term 0.  The
-designated leader listens for `listen_s` (4 broadcast periods) before it claims term 0: in a
-swarm starting up it hears nothing better and leads; restarted into a running swarm that
-elected another leader, it hears that leader's claim or a later term in the peers' frames,
-follows, and takes the vacated slot (below).  Once a term above 0 was seen it never claims
-term 0 again.
+d: the designated leader, expected in term 0.  A boot at simulation time 0 is the run's start,
+where nobody can have been elected: there the designated leader leads term 0 at once, as the
+paper's fixed leader does (and as the batch simulator's does).  Any other boot is in term 0 as a
+follower.  The designated leader listens for `listen_s` (4 broadcast periods) before it claims
+term 0: in a swarm starting up it hears nothing better and leads; restarted into a running swarm
+that elected another leader, it hears that leader's claim or a later term in the peers' frames,
+follows, and takes the vacated slot (below).  Once a term above 0 was seen it never claims term 0
+again.
 
 No split brain: a robot partitioned from the rest that elected itself keeps its term only until
 it hears a claim that beats it (a higher term, or the same term from a lower index); then it
@@ -135,6 +139,7 @@ class Leadership:
     highest_term_seen: int = field(init=False, default=0)
     claim_heard: bool = field(init=False, default=False)
     """Whether any peer's claim to lead was heard since boot (or the last `resume`)."""
+    last_update_s: float = field(init=False, default=-math.inf)
     listen_from_s: float = field(init=False, default=0.0)
     """Boot (or the last `resume`): the designated leader listens `listen_s` from here."""
     peers: list[PeerRecord] = field(init=False)
@@ -149,10 +154,12 @@ class Leadership:
         self.peers = [PeerRecord() for _ in range(self.count)]
         p = self.params
         self.waiting_since_s = self.boot_s + max(p.boot_patience_s - p.leader_timeout_s, 0.0)
-        if self.index != self.designated_leader:
-            self.leader = self.designated_leader
         self.claim_heard = False
         self.listen_from_s = self.boot_s
+        if self.index != self.designated_leader:
+            self.leader = self.designated_leader
+        elif self.boot_s <= 0.0:
+            self._set(Phase.LEADING, self.index, 0, self.boot_s, "designated leader at t = 0")
 
     @property
     def is_leader(self) -> bool:
@@ -184,15 +191,22 @@ class Leadership:
         self.peers[peer].token_gone = not alive
 
     def resume(self, t_s: float) -> None:
-        """After a gap in the sense messages (a frozen process, a world restart): do not act
-        on who led before; follow whoever claims next, keeping the term.  The designated
-        leader listens again before it claims term 0."""
+        """After a gap in the sense messages (a frozen process, a world restart).
+
+        A gap no longer than `leader_timeout_s` since the last `update` changes nothing: no
+        peer can have found this robot's claims missing.  After a longer gap, or when time went
+        back, it does not act on who led before: it follows whoever claims next, keeping the
+        term, and the designated leader listens again before it claims term 0."""
+        gap_s = t_s - self.last_update_s
+        if 0.0 <= gap_s <= self.params.leader_timeout_s:
+            return
         self.claim_heard = False
         self.listen_from_s = t_s
         self._set(Phase.FOLLOWING, None, self.term, t_s, "resumed after a gap")
 
     def update(self, t_s: float) -> None:
         """Run the time-outs at `t_s`: detect a lost leader and elect (once per tick)."""
+        self.last_update_s = t_s
         if self.is_leader:
             return
         if self._designated_claim_due(t_s):

@@ -35,11 +35,16 @@ def following(machine: Leadership, leader: int | None, term: int) -> bool:
 def robot_led(index: int, boot_s: float = 0.0) -> Leadership:
     """A machine past its boot listening, with robot 0 leading term 0."""
     machine = robot(index, boot_s)
-    if index == 0:
+    if index == 0 and not machine.is_leader:
         machine.update(boot_s + PARAMS.listen_s)
     else:
         machine.hear(0, 0, True, boot_s + PARAMS.listen_s)
     return machine
+
+
+def test_designated_leader_booting_at_the_runs_start_leads_term_0_at_once() -> None:
+    leader = robot(0, boot_s=0.0)
+    assert leader.is_leader and leader.term == 0 and leader.acting_leader(0.0) == 0
 
 
 def test_designated_leader_listens_then_leads_term_0() -> None:
@@ -90,6 +95,7 @@ def test_designated_leader_restarted_before_any_election_leads_term_0_again() ->
 
 def test_resumed_designated_leader_listens_again_before_it_claims() -> None:
     leader = robot_led(0)
+    leader.update(4.0)
     leader.resume(5.0)
     leader.update(5.1)
     assert not leader.is_leader
@@ -186,6 +192,20 @@ def test_own_and_unknown_senders_are_ignored() -> None:
     follower.hear(7, 9, True, 0.1)
     follower.set_alive(7, False, 0.1)
     assert following(follower, 0, 0)
+
+
+def test_resume_after_a_short_gap_changes_nothing() -> None:
+    leader = robot_led(0)
+    leader.update(2.0)
+    leader.resume(2.4)
+    assert leader.is_leader and leader.term == 0
+
+
+def test_resume_after_time_went_back_forgets_the_leader() -> None:
+    follower = robot_led(2)
+    follower.update(2.0)
+    follower.resume(1.5)
+    assert following(follower, None, 0)
 
 
 def test_resume_forgets_the_leader_but_keeps_the_term() -> None:
