@@ -20,7 +20,9 @@ When the sense messages stop (the scheduler's `SafeStop`), `safe_stop` turns the
 through the motor driver and stops kicking the watchdog, so the watchdog IP cuts the PWM at
 its timeout even if the driver's writes were lost.  The first tick after the gap (`resume`)
 starts from a fresh control state: it re-localises from the next fix, its PID and avoidance
-state start from zero, and peer states outside the decoder's age window are dropped.
+state start from zero, and peer states outside the decoder's age window are dropped.  On a new
+world epoch (`new_world_epoch`: the world restarted and its clock jumped) every peer state and
+replay window goes, whatever its stamp.
 Time is an argument (`now_ns`); the class opens no
 socket and reads no clock, so a test can run it against a fabric model in one process.
 """
@@ -219,6 +221,18 @@ class Firmware:
         self._next_broadcast_ns = 0
         self._next_sonar_ns = 0
         self._fresh_state_pending = True
+
+    def new_world_epoch(self, now_ns: int) -> None:
+        """The world restarted and its clock jumped (to `now_ns`, backwards or forwards): every
+        peer state and every replay window from before the jump is void, and so are the
+        schedules (`resume`).  The frame decoder starts afresh; its counters carry on."""
+        self.peer_stamp_s[:] = -np.inf
+        counters = self.decoder.counters
+        self.decoder = FrameDecoder(
+            self._key, own_id=self.mission.index, swarm_hash=self._swarm_hash, run_id=self._run_id
+        )
+        self.decoder.counters = counters
+        self.resume(now_ns)
 
     def control_tick(self, now_ns: int) -> TickReport:
         """Run the 5C levels once at time now_ns."""

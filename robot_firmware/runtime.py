@@ -160,6 +160,9 @@ class RobotProcess:
         """Sense messages applied, and refused per `WireDropReason`."""
         self.stop = threading.Event()
         self._fabric_time_ns = 0
+        self._fabric_offset_ns = 0
+        """Fabric time minus world time; changes only when the world's clock jumps (a new
+        epoch), so the fabric's clock never runs backwards."""
         self._telemetry_period_ns = round(NS_PER_S / config.telemetry_rate_hz)
         self._next_telemetry_ns = 0
         self._telemetry_count = 0
@@ -218,7 +221,18 @@ class RobotProcess:
         if isinstance(decision, SafeStop):
             self._safe_stop(decision, act_pub, telemetry_pub)
             return
-        if decision.resumed:
+        if decision.new_epoch:
+            log.info(
+                "new world epoch %d at t = %.3f s: schedulers re-synchronised, peer state dropped",
+                self.scheduler.epoch,
+                decision.sim_time_ns / NS_PER_S,
+            )
+            # The fabric's own clock runs on from where it is: only its offset to the world's
+            # time changes.
+            self._fabric_offset_ns = self._fabric_time_ns - decision.sim_time_ns
+            self._next_telemetry_ns = 0
+            self.firmware.new_world_epoch(decision.sim_time_ns)
+        elif decision.resumed:
             log.info("sense messages back: re-localising, stale peer state dropped")
             self.firmware.resume(decision.sim_time_ns)
         self._control(decision.sim_time_ns, decision.tick, act_pub, tx_pub, telemetry_pub)
@@ -233,12 +247,25 @@ class RobotProcess:
                 continue
             apply_sense(self.fabric, message)
             self.scheduler.sensed(
-                message.t_ns, message.tick, message.lockstep, message.radio_frames, arrival
+                message.t_ns,
+                message.tick,
+                message.lockstep,
+                message.radio_frames,
+                arrival,
+                message.epoch,
             )
 
     def _sim_time_ns(self, mono_now_ns: int) -> int:
         sim_now = self.scheduler.sim_time_ns(mono_now_ns)
-        return self._fabric_time_ns + self.period_ns if sim_now is None else sim_now
+        if sim_now is None:
+            return self._fabric_time_ns - self._fabric_offset_ns + self.period_ns
+        return sim_now
+
+    def _advance_fabric_to(self, world_now_ns: int) -> None:
+        """Run the fabric up to world time `world_now_ns` (never backwards)."""
+        target_ns = world_now_ns + self._fabric_offset_ns
+        if target_ns > self._fabric_time_ns:
+            self._tick_fabric(target_ns - self._fabric_time_ns)
 
     def _tick_fabric(self, dt_ns: int) -> None:
         step = self.config.fabric_step_ns
@@ -256,8 +283,7 @@ class RobotProcess:
         tx_pub: zenoh.Publisher,
         telemetry_pub: zenoh.Publisher,
     ) -> None:
-        if now_ns > self._fabric_time_ns:
-            self._tick_fabric(now_ns - self._fabric_time_ns)
+        self._advance_fabric_to(now_ns)
         while self._frames:
             self.firmware.receive(self._frames.popleft(), now_ns)
         report = self.firmware.control_tick(now_ns)
@@ -279,8 +305,7 @@ class RobotProcess:
                 self.scheduler.sense_timeout_ns / 1e6,
             )
         now_ns = decision.sim_time_ns
-        if now_ns > self._fabric_time_ns:
-            self._tick_fabric(now_ns - self._fabric_time_ns)
+        self._advance_fabric_to(now_ns)
         self.firmware.safe_stop()
         self._publish_act(0, 0, act_pub)
         self._publish_telemetry(now_ns, telemetry_pub)

@@ -23,6 +23,10 @@ Two clock modes, chosen by the world's sense messages:
   tick number; it runs once the radio frames the message announces have arrived.  After a
   (re)join two ticks may be queued: only the newest is answered.
 
+A sense message of a new world epoch (the world restarted, from a checkpoint or from nothing)
+moves the loop's time to the message's, backwards or forwards, at once: the next tick runs on
+the new time (in real time: deadlines afresh from its arrival) and is marked `new_epoch`.
+
 Until the first sense message there is no time, and no tick runs.  Lockstep has no sense
 time-out: without the world no simulated time passes, and no tick means no control.
 """
@@ -61,6 +65,9 @@ class RunTick:
     resumed: bool = False
     """The first tick after a safe stop or a gap in the sense messages: state from before the
     gap is stale."""
+    new_epoch: bool = False
+    """The first tick of a new world epoch (the world restarted; its clock may have jumped
+    backwards or forwards): every time-stamped state from before it is void."""
 
 
 @dataclass(frozen=True)
@@ -127,21 +134,42 @@ class TickScheduler:
         self._next_deadline_ns = 0
         self._last_start_ns: int | None = None
         self._resume = False
+        self.epoch: int | None = None
+        """The world epoch of the newest sense message."""
+        self.epoch_changes = 0
+        """New world epochs seen after the first sense message."""
+        self._new_epoch = False
 
     @property
     def has_time(self) -> bool:
         return self._last is not None
 
     def sensed(
-        self, t_ns: int, tick: int, lockstep: bool, radio_frames: int, arrival_mono_ns: int
+        self,
+        t_ns: int,
+        tick: int,
+        lockstep: bool,
+        radio_frames: int,
+        arrival_mono_ns: int,
+        epoch: int = 0,
     ) -> None:
-        """A sense message was applied to the pins (messages in arrival order)."""
+        """A sense message was applied to the pins (messages in arrival order).
+
+        A message of another world epoch than the previous one re-synchronises the loop to
+        its time, wherever that is (the next tick is `new_epoch` and `resumed`)."""
         sensed = _Sensed(t_ns, tick, radio_frames, arrival_mono_ns)
         previous = self._last
+        new_epoch = previous is not None and epoch != self.epoch
+        self.epoch = epoch
+        if new_epoch:
+            self.epoch_changes += 1
+            self._new_epoch = True
         if previous is None:
             self._next_deadline_ns = arrival_mono_ns
-        elif self.safe_stopped or (
-            not lockstep and arrival_mono_ns - previous.arrival_mono_ns > self.sense_timeout_ns
+        elif (
+            new_epoch
+            or self.safe_stopped
+            or (not lockstep and arrival_mono_ns - previous.arrival_mono_ns > self.sense_timeout_ns)
         ):
             self._next_deadline_ns = arrival_mono_ns  # start afresh: no burst of late ticks
             self._last_start_ns = None
@@ -166,7 +194,8 @@ class TickScheduler:
                 return Wait(IDLE_WAIT_S)
             self._pending = None
             resumed, self._resume = self._resume, False
-            return RunTick(pending.t_ns, pending.tick, mono_now_ns, resumed)
+            new_epoch, self._new_epoch = self._new_epoch, False
+            return RunTick(pending.t_ns, pending.tick, mono_now_ns, resumed, new_epoch)
         if mono_now_ns < self._next_deadline_ns:
             return Wait((self._next_deadline_ns - mono_now_ns) / NS_PER_S)
         sim_now = self._last.t_ns + (mono_now_ns - self._last.arrival_mono_ns)
@@ -177,7 +206,8 @@ class TickScheduler:
                 self.safe_stops += 1
             return SafeStop(sim_now, mono_now_ns, entered)
         resumed, self._resume = self._resume, False
-        return RunTick(sim_now, 0, mono_now_ns, resumed)
+        new_epoch, self._new_epoch = self._new_epoch, False
+        return RunTick(sim_now, 0, mono_now_ns, resumed, new_epoch)
 
     def finished(self, tick: RunTick | SafeStop, end_mono_ns: int) -> None:
         """A real-time tick (or safe-stop period) ended: record its timing and set the next

@@ -447,3 +447,47 @@ def test_resume_drops_peer_state_outside_the_decoders_age_window() -> None:
     assert np.isfinite(firmware.peer_stamp_s[0])  # still young enough
     firmware.resume(t_ns + firmware.decoder.max_age_ns + MS)
     assert not np.isfinite(firmware.peer_stamp_s[0])
+
+
+def _ticks_with_fix(fabric: Fabric, firmware: Firmware, t0_ns: int, count: int) -> list[bool]:
+    """Control ticks every 10 ms from t0_ns with a fix each; which of them broadcast."""
+    broadcast = []
+    for k in range(count):
+        t_ns = t0_ns + k * 10 * MS
+        apply_sense(fabric, SenseMessage((0,) * 4, (None,) * 12, FixSample(1.0, 2.0, 0.5, t_ns)))
+        broadcast.append(firmware.control_tick(t_ns).frame is not None)
+        fabric.tick(10 * MS)
+    return broadcast
+
+
+def test_a_new_world_epoch_drops_peer_state_and_replay_windows_and_restarts_schedules() -> None:
+    fabric, firmware = _lone_firmware()
+    t_ns = 5_000 * MS
+    sequence = initial_sequence(t_ns)
+    for k in range(3):
+        assert firmware.receive(_peer_frame(True, sequence + k, t_ns + k * MS), t_ns + k * MS)
+    _ticks_with_fix(fabric, firmware, t_ns, 3)
+    # The world restarts from a checkpoint 100 ms back; the peer re-sends from that time with
+    # a sequence number it starts afresh: to the old replay windows it is out of order.
+    back_ns = t_ns - 100 * MS
+    rebooted_peer = _peer_frame(True, initial_sequence(back_ns), back_ns)
+    firmware.new_world_epoch(back_ns)
+    assert not np.isfinite(firmware.peer_stamp_s).any()
+    accepted_before = firmware.decoder.counters.accepted
+    assert firmware.receive(rebooted_peer, back_ns)
+    assert firmware.decoder.counters.accepted == accepted_before + 1 == 4
+    assert firmware.peer_stamp_s[0] == pytest.approx(back_ns / 1e9)
+    # The broadcast schedule follows the new clock: the first localised tick broadcasts, and
+    # then one in every broadcast period (20 Hz: 5 ticks).
+    assert (
+        _ticks_with_fix(fabric, firmware, back_ns, 10)
+        == [True] + [False] * 4 + [True] + [False] * 4
+    )
+
+
+def test_without_a_new_epoch_the_rebooted_peers_frame_is_out_of_order() -> None:
+    _, firmware = _lone_firmware()
+    t_ns = 5_000 * MS
+    assert firmware.receive(_peer_frame(True, initial_sequence(t_ns), t_ns), t_ns)
+    back_ns = t_ns - 100 * MS
+    assert not firmware.receive(_peer_frame(True, initial_sequence(back_ns), back_ns), back_ns)

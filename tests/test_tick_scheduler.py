@@ -226,3 +226,60 @@ def test_lockstep_has_no_sense_time_out() -> None:
 def test_a_sense_time_out_must_be_positive(timeout_ns: int) -> None:
     with pytest.raises(ValueError, match="positive"):
         TickScheduler(PERIOD_NS, sense_timeout_ns=timeout_ns)
+
+
+def _sensed_epoch(
+    scheduler: TickScheduler, t_ns: int, arrival_ns: int, epoch: int, lockstep: bool = False
+) -> None:
+    tick = t_ns // PERIOD_NS if lockstep else 0
+    scheduler.sensed(t_ns, tick, lockstep, 0, arrival_ns, epoch)
+
+
+def _run_ticks(scheduler: TickScheduler, start_ns: int, count: int) -> list[RunTick]:
+    ticks = []
+    for k in range(count):
+        decision = scheduler.poll(start_ns + k * PERIOD_NS, 0)
+        assert isinstance(decision, RunTick)
+        scheduler.finished(decision, start_ns + k * PERIOD_NS + MS)
+        ticks.append(decision)
+    return ticks
+
+
+@pytest.mark.parametrize("new_world_t_ns", [3_000 * MS, 9_000 * MS])
+def test_a_new_world_epoch_moves_the_clock_backwards_or_forwards_at_once(
+    new_world_t_ns: int,
+) -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    _sensed_epoch(scheduler, 5_000 * MS, 0, epoch=11)
+    before = _run_ticks(scheduler, 0, 3)
+    assert not any(t.new_epoch or t.resumed for t in before)
+    # The restarted world's first sense message, 35 ms later (no sense time-out).
+    _sensed_epoch(scheduler, new_world_t_ns, 35 * MS, epoch=12)
+    first = scheduler.poll(35 * MS, 0)
+    assert first == RunTick(new_world_t_ns, 0, 35 * MS, resumed=True, new_epoch=True)
+    scheduler.finished(first, 36 * MS)
+    assert scheduler.epoch == 12 and scheduler.epoch_changes == 1
+    later = _run_ticks(scheduler, 45 * MS, 3)
+    assert [t.sim_time_ns for t in later] == [new_world_t_ns + k * PERIOD_NS for k in (1, 2, 3)]
+    assert not any(t.new_epoch or t.resumed for t in later)
+
+
+def test_sense_messages_of_the_same_epoch_are_no_jump() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    for k in range(5):
+        _sensed_epoch(scheduler, k * PERIOD_NS, k * PERIOD_NS, epoch=7)
+        decision = scheduler.poll(k * PERIOD_NS, 0)
+        assert isinstance(decision, RunTick) and not decision.new_epoch
+        scheduler.finished(decision, k * PERIOD_NS + MS)
+    assert scheduler.epoch_changes == 0
+
+
+def test_lockstep_answers_the_resumed_worlds_tick_after_a_new_epoch() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    _sensed_epoch(scheduler, 5_000 * MS, 0, epoch=1, lockstep=True)
+    assert scheduler.poll(0, 0) == RunTick(5_000 * MS, 500, 0)
+    _sensed_epoch(scheduler, 4_200 * MS, 2 * MS, epoch=2, lockstep=True)
+    resumed = scheduler.poll(3 * MS, 0)
+    assert resumed == RunTick(4_200 * MS, 420, 3 * MS, resumed=True, new_epoch=True)
+    _sensed_epoch(scheduler, 4_210 * MS, 4 * MS, epoch=2, lockstep=True)
+    assert scheduler.poll(5 * MS, 0) == RunTick(4_210 * MS, 421, 5 * MS)
