@@ -182,6 +182,8 @@ class AdminRefusal(enum.StrEnum):
     """The body is not a YAML (or JSON) document."""
     UNKNOWN_VERB = "unknown_verb"
     UNKNOWN_ROBOT = "unknown_robot"
+    UNKNOWN_PROCESS = "unknown_process"
+    """No process of that name under the launcher."""
     UNKNOWN_PROFILE = "unknown_profile"
     BUS_ERROR = "bus_error"
     """The register access was refused by the bus."""
@@ -348,12 +350,13 @@ class LauncherStatusReply(AdminOk):
     processes: dict[str, ProcessStatus]
 
 
-class RobotRequest(Message):
-    """`admin/launcher/kill` and `.../restart`: which robot."""
+class ProcessRequest(Message):
+    """`admin/launcher/kill` and `.../restart`: which of the launcher's processes (a robot,
+    `world`, `router` or `dashboard`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    robot: str
+    process: str
 
 
 class KillReply(AdminOk):

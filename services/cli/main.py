@@ -328,15 +328,15 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 
 def _cmd_kill(args: argparse.Namespace) -> int:
-    from robot_firmware.net.messages import RobotRequest
+    from robot_firmware.net.messages import ProcessRequest
 
-    return _print_reply(_ask(args, "launcher", "kill", RobotRequest(robot=args.robot)))
+    return _print_reply(_ask(args, "launcher", "kill", ProcessRequest(process=args.process)))
 
 
 def _cmd_restart(args: argparse.Namespace) -> int:
-    from robot_firmware.net.messages import RobotRequest
+    from robot_firmware.net.messages import ProcessRequest
 
-    return _print_reply(_ask(args, "launcher", "restart", RobotRequest(robot=args.robot)))
+    return _print_reply(_ask(args, "launcher", "restart", ProcessRequest(process=args.process)))
 
 
 def _cmd_net(args: argparse.Namespace) -> int:
@@ -587,12 +587,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, text, handler in (
         ("status", "show the processes of a running swarm", _cmd_status),
-        ("kill", "SIGKILL a robot of a running swarm (a power cut)", _cmd_kill),
-        ("restart", "start a robot of a running swarm again", _cmd_restart),
+        ("kill", "SIGKILL a process of a running swarm (a power cut)", _cmd_kill),
+        ("restart", "start a process of a running swarm again", _cmd_restart),
     ):
         cmd = sub.add_parser(name, help=text, description=text + ".")
         if name != "status":
-            cmd.add_argument("robot", help="robot name, e.g. robot2")
+            cmd.add_argument(
+                "process", help="a robot's name (e.g. robot2), world, router or dashboard"
+            )
         admin_query_options(cmd)
         cmd.set_defaults(handler=handler)
 

@@ -2,16 +2,20 @@
 
 `Launcher.up` starts the router, the world and every robot of the scenario as child processes
 (`python -m services.cli.main ...`), each logging to `<out>/logs/<name>.log`, and supervises
-them until the world ends (its `--duration`), Ctrl-C or SIGTERM, then stops everything in
-order (dashboard, robots, world, router), leaving `<out>/summary.json` from the world.
+them until the world ends cleanly (its `--duration`), Ctrl-C or SIGTERM, then stops everything
+in order (dashboard, robots, world, router), leaving `<out>/summary.json` from the world.
 
 The dashboard (`swarm dashboard`, the live Rerun viewer and `<out>/dashboard.rrd`) starts with
 them unless `dashboard=False`.  While it runs, the launcher answers admin queries on
 `swarm/<swarm>/admin/launcher/<verb>`: `status` (processes and PIDs), `kill` (SIGKILL a
-robot: a power cut) and `restart` (start a robot again, killing it first if it still runs);
-`swarm status|kill|restart` send them.
+process: a robot, the world, the dashboard or the router; a power cut) and `restart` (start it
+again, killing it first if it still runs); `swarm status|kill|restart` send them.
 A router that dies is started again at once; every other process is a client that waits for
-it and reconnects.  A robot that dies stays down (a power cut) until it is restarted.
+it and reconnects.  A world that dies (crashes, or is killed from outside the launcher) is
+started again too, and resumes from its last checkpoint in `<out>/checkpoints/`
+(world/checkpoint.py); one that keeps dying within `WORLD_QUICK_DEATH_S` of its start
+`WORLD_MAX_QUICK_DEATHS` times in a row ends the run.  A robot that dies, and a process killed
+with `kill`, stay down (a power cut) until restarted.
 The process factory is injectable so tests can substitute their own.
 
 Every run gets fresh credentials (swarm_config/credentials.py) in `<out>/credentials/`: one
@@ -44,9 +48,9 @@ from robot_firmware.net.messages import (
     AdminRefusal,
     KillReply,
     LauncherStatusReply,
+    ProcessRequest,
     ProcessStatus,
     RestartReply,
-    RobotRequest,
     refusal_of,
 )
 from robot_firmware.net.session import open_client
@@ -64,6 +68,10 @@ from swarm_config.settings import describe_validation_error
 log = logging.getLogger("swarm.launcher")
 
 ROOT = Path(__file__).resolve().parents[2]
+WORLD_QUICK_DEATH_S = 5.0
+"""A world that dies sooner than this after its start counts as a quick death."""
+WORLD_MAX_QUICK_DEATHS = 5
+"""This many quick deaths in a row end the run (a world that cannot start)."""
 
 
 @dataclass
@@ -75,6 +83,7 @@ class Child:
     log_file: IO[bytes] | None = None
     restarts: int = 0
     killed: bool = False
+    started_mono_s: float = 0.0
 
     @property
     def running(self) -> bool:
@@ -125,6 +134,8 @@ class Launcher:
         self.keys = SwarmKeys(plan.swarm)
         self.children: dict[str, Child] = {}
         self.stop = threading.Event()
+        self.world_quick_deaths = 0
+        """Deaths of the world within `WORLD_QUICK_DEATH_S` of its start, in a row."""
         self._admin = AdminQueue()
         logs = plan.out_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
@@ -196,6 +207,7 @@ class Launcher:
             child.log_file = child.log_path.open("ab")
         child.process = self.factory(child.argv, child.log_file, self._env(name))
         child.killed = False
+        child.started_mono_s = time.monotonic()
         log.info("started %s (pid %d)", name, child.process.pid)
 
     def kill(self, name: str) -> bool:
@@ -228,26 +240,26 @@ class Launcher:
             for name, child in self.children.items()
         }
 
-    def _robot_named(self, body: bytes) -> str | AdminError:
+    def _process_named(self, body: bytes) -> str | AdminError:
         try:
-            name = RobotRequest.model_validate_json(body).robot
+            name = ProcessRequest.model_validate_json(body).process
         except ValidationError as exc:
             return AdminError(
                 error=describe_validation_error("invalid request", exc), reason=refusal_of(exc)
             )
-        if name not in self.plan.robots:
+        if name not in self.children:
             return AdminError(
-                error=f"no robot {name!r}; robots: {', '.join(self.plan.robots)}",
-                reason=AdminRefusal.UNKNOWN_ROBOT,
+                error=f"no process {name!r}; processes: {', '.join(self.children)}",
+                reason=AdminRefusal.UNKNOWN_PROCESS,
             )
         return name
 
     def _kill_request(self, body: bytes) -> KillReply | AdminError:
-        name = self._robot_named(body)
+        name = self._process_named(body)
         return name if isinstance(name, AdminError) else KillReply(killed=self.kill(name))
 
     def _restart_request(self, body: bytes) -> RestartReply | AdminError:
-        name = self._robot_named(body)
+        name = self._process_named(body)
         if isinstance(name, AdminError):
             return name
         self.restart(name)
@@ -283,9 +295,9 @@ class Launcher:
             try:
                 while not self.stop.is_set():
                     self._serve()
-                    world = self.children["world"]
-                    if world.process is not None and world.process.poll() is not None:
-                        code = world.process.returncode
+                    ended = self.supervise_world()
+                    if ended is not None:
+                        code = ended
                         break
                     if not self.children["router"].running:
                         # Clients wait for the router and reconnect: bring it back.
@@ -296,6 +308,27 @@ class Launcher:
                 token.undeclare()
                 self.shutdown()
         return code
+
+    def supervise_world(self) -> int | None:
+        """The run's exit status when the world has ended it, else None.
+
+        A clean exit (status 0) ends the run; a world killed through `kill` stays down until
+        `restart`; any other exit is a death: the world is started again (it resumes from its
+        checkpoint), unless it died `WORLD_MAX_QUICK_DEATHS` times in a row at its start."""
+        world = self.children["world"]
+        exit_code = None if world.process is None else world.process.poll()
+        if exit_code is None or world.killed:
+            return None
+        if exit_code == 0:
+            return 0
+        quick = time.monotonic() - world.started_mono_s < WORLD_QUICK_DEATH_S
+        self.world_quick_deaths = self.world_quick_deaths + 1 if quick else 0
+        if self.world_quick_deaths >= WORLD_MAX_QUICK_DEATHS:
+            log.error("the world died %d times at its start; ending", self.world_quick_deaths)
+            return exit_code
+        log.warning("the world exited (%d); restarting it", exit_code)
+        self.restart("world")
+        return None
 
     def shutdown(self, grace_s: float = 5.0) -> None:
         order = [

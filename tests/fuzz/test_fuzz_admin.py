@@ -277,9 +277,9 @@ def launcher(tmp_path: Path) -> Iterator[tuple[Launcher, StandInFactory]]:
     launcher.shutdown(grace_s=0.0)
 
 
-def _robot_request(rng: random.Random) -> Any:
+def _process_request(rng: random.Random) -> Any:
     name = rng.choice(("robot1", "robot2", "robot3", "robot4", "world", "router", "", "Robot1"))
-    body: Any = {"robot": name if rng.random() < 0.8 else rng.choice(NASTY_JSON)}
+    body: Any = {"process": name if rng.random() < 0.8 else rng.choice(NASTY_JSON)}
     return mutate_json(rng, body) if rng.random() < 0.3 else body
 
 
@@ -296,13 +296,14 @@ def test_launcher_requests(launcher: tuple[Launcher, StandInFactory], verb: str)
         f"admin launcher/{verb}",
         process_table.admin_handlers(),
         verb,
-        _bodies(6, _robot_request),
+        _bodies(6, _process_request),
         state,
     )
     if verb != "status":
-        assert counters.refused[AdminRefusal.UNKNOWN_ROBOT] > 0
+        assert counters.refused[AdminRefusal.UNKNOWN_PROCESS] > 0
         assert counters.refused[AdminRefusal.NOT_JSON] > 0
-    assert process_table.children["world"].restarts == 0  # only robots are killed or restarted
+    # Only the launcher's own processes are killed or restarted.
+    assert set(process_table.children) == {"router", "world", "robot1", "robot2", "robot3"}
 
 
 def test_unknown_verbs_are_refused_by_name() -> None:
