@@ -48,6 +48,8 @@ Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 | any             | `resume` after a gap up to `leader_timeout_s`    | unchanged       | same    |
 | any             | `resume` after a longer gap, or time went back:  | FOLLOWING(None) | same    |
 |                 | listens again as at boot                         |                 |         |
+| any             | `new_epoch` (the world's clock jumped): peers    | FOLLOWING(None) | same    |
+|                 | unheard, then as `resume`                        |                 |         |
 
 d: the designated leader, expected in term 0.  A boot at simulation time 0 is the run's start,
 where nobody can have been elected: there the designated leader leads term 0 at once, as the
@@ -203,6 +205,14 @@ class Leadership:
         self.claim_heard = False
         self.listen_from_s = t_s
         self._set(Phase.FOLLOWING, None, self.term, t_s, "resumed after a gap")
+
+    def new_epoch(self, t_s: float) -> None:
+        """The world's clock jumped (a restarted world): every time heard before is void, so
+        no peer is live until heard again; then as `resume` after a long gap."""
+        for peer in self.peers:
+            peer.last_heard_s = -math.inf
+        self.last_update_s = -math.inf
+        self.resume(t_s)
 
     def update(self, t_s: float) -> None:
         """Run the time-outs at `t_s`: detect a lost leader and elect (once per tick)."""

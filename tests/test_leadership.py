@@ -208,6 +208,15 @@ def test_resume_after_time_went_back_forgets_the_leader() -> None:
     assert following(follower, None, 0)
 
 
+def test_new_epoch_forgets_when_peers_were_heard() -> None:
+    follower = robot_led(2)
+    follower.hear(1, 0, False, 30.0)
+    follower.update(30.0)
+    follower.new_epoch(29.0)  # a world resumed from a checkpoint a second back
+    assert following(follower, None, 0)
+    assert not follower.is_live(1, 29.0)
+
+
 def test_resume_forgets_the_leader_but_keeps_the_term() -> None:
     leader = robot_led(0)
     leader.hear(1, 0, False, 0.0)
