@@ -15,8 +15,8 @@ JSON ones are here:
 | `admin/world/net`                     | world     | `NetProfileRequest` or a partial       |
 |                                       |           | `LinkProfile` -> `NetReply`            |
 | `admin/launcher/status`               | launcher  | `LauncherStatusReply`                  |
-| `admin/launcher/kill`                 | launcher  | `RobotRequest` -> `KillReply`          |
-| `admin/launcher/restart`              | launcher  | `RobotRequest` -> `RestartReply`       |
+| `admin/launcher/kill`                 | launcher  | `ProcessRequest` -> `KillReply`        |
+| `admin/launcher/restart`              | launcher  | `ProcessRequest` -> `RestartReply`     |
 
 Every admin reply is either its verb's reply model (`ok` true) or an `AdminError` (`ok` false,
 with the reason).  Readers tolerate fields they do not know (`extra="ignore"`), so a producer may

@@ -10,6 +10,12 @@ router's user dictionary and access control: services/router/access.py).
 A client given no credentials uses the file named by `$SWARM_CREDENTIALS_FILE` when it is set
 (how test harnesses and your own scripts reach a running swarm), and otherwise connects
 without any: a router that requires them refuses it.
+
+On `tls/HOST:PORT` endpoints a client trusts the router only if the swarm's CA signed its
+certificate for HOST (swarm_config/tls.py): the CA certificate given as `tls_root_ca`, else
+the file named by `$SWARM_TLS_ROOT_CA` (`transport/link/tls/root_ca_certificate`), else one
+its config file names.  `open_client` refuses a `tls/` endpoint with none of them at once
+(`TlsError`): zenoh would otherwise keep retrying a router it can never trust.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from pathlib import Path
 import zenoh
 
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, ProcessCredentials, read_credentials
+from swarm_config.tls import TLS_ROOT_CA_ENV, TlsError, root_ca_from_environment
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "zenoh"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -38,14 +45,19 @@ def client_config(
     connect: Sequence[str] = (DEFAULT_ENDPOINT,),
     config_file: Path | None = None,
     credentials: ProcessCredentials | None = None,
+    tls_root_ca: Path | None = None,
 ) -> zenoh.Config:
-    """A client's config; with `credentials`, it logs in as their identity."""
+    """A client's config; with `credentials`, it logs in as their identity; with
+    `tls_root_ca`, it trusts the router certificates that CA signed on `tls/` links."""
     config = _load(config_file, "client.json5")
     config.insert_json5("mode", json.dumps("client"))
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
     if credentials is not None:
         login = {"user": credentials.identity, "password": credentials.password.get_secret_value()}
         config.insert_json5("transport/auth/usrpwd", json.dumps(login))
+    if tls_root_ca is not None:
+        ca = str(tls_root_ca.resolve())
+        config.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(ca))
     return config
 
 
@@ -70,12 +82,24 @@ def open_client(
     connect: Sequence[str],
     config_file: Path | None = None,
     credentials: ProcessCredentials | None = None,
+    tls_root_ca: Path | None = None,
 ) -> zenoh.Session:
     """A client session logged in with `credentials` (else those of $SWARM_CREDENTIALS_FILE,
-    else none); with the default config it waits for the router to come up."""
+    else none), trusting `tls_root_ca` (else $SWARM_TLS_ROOT_CA) on `tls/` links; with the
+    default config it waits for the router to come up."""
     zenoh.init_log_from_env_or("error")
     login = credentials if credentials is not None else credentials_from_environment()
-    return zenoh.open(client_config(connect, config_file, login))
+    ca = tls_root_ca if tls_root_ca is not None else root_ca_from_environment()
+    config = client_config(connect, config_file, login, ca)
+    tls_roots = ("root_ca_certificate", "root_ca_certificate_base64")
+    no_ca = all(config.get_json(f"transport/link/tls/{key}") == "null" for key in tls_roots)
+    if no_ca and any(endpoint.startswith("tls/") for endpoint in connect):
+        raise TlsError(
+            f"a tls/ endpoint needs the swarm's CA certificate: set ${TLS_ROOT_CA_ENV} to "
+            "its path (<credentials>/tls/ca.pem, written by `swarm credentials --tls` or "
+            "`swarm up --tls`)"
+        )
+    return zenoh.open(config)
 
 
 def split_endpoints(text: str) -> list[str]:

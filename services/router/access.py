@@ -8,7 +8,9 @@ configs/zenoh/router.json5, plus):
 * `access_control` with `default_permission: "deny"`: a message passes the router only when
   an allow rule of the sending identity (`ingress`) *and*, where it is delivered to another
   client, of the receiving identity (`egress`) covers its key. A denied message is dropped
-  without a word to the sender.
+  without a word to the sender;
+* with the swarm's TLS files (swarm_config/tls.py), `transport/link/tls`: the router's
+  certificate and key for its `tls/` endpoints; login and access control stay as above.
 
 What each identity may do (every key from robot_firmware/net/keys.py):
 
@@ -59,6 +61,7 @@ from swarm_config.credentials import (
     CredentialSet,
     write_private_file,
 )
+from swarm_config.tls import TlsError, TlsFiles
 
 ROUTER_CONFIG_FILE = "router.json5"
 """The generated router config, beside the credentials (it names the user file)."""
@@ -172,35 +175,64 @@ def access_control(swarm: str, robots: Sequence[str]) -> dict[str, Any]:
     }
 
 
+def tls_link(tls: TlsFiles) -> dict[str, Any]:
+    """The router's `transport/link/tls` section: its certificate and key for `tls/`
+    listeners, the swarm's CA for links it opens itself. Clients show no certificate (no
+    mTLS): they log in with user and password, as on `tcp/`."""
+    return {
+        "listen_certificate": str(tls.router_certificate.resolve()),
+        "listen_private_key": str(tls.router_private_key.resolve()),
+        "root_ca_certificate": str(tls.ca_certificate.resolve()),
+    }
+
+
 def router_config_document(
-    credentials: CredentialSet, users_file: Path, listen: Sequence[str]
+    credentials: CredentialSet,
+    users_file: Path,
+    listen: Sequence[str],
+    tls: TlsFiles | None = None,
 ) -> dict[str, Any]:
     """The whole router config of a run (what configs/zenoh/router.json5 sets, plus login and
-    access control); usable by `swarm router --config` and by a stock `zenohd -c`."""
+    access control, and with `tls` the certificate of its `tls/` endpoints); usable by
+    `swarm router --config` and by a stock `zenohd -c`. TlsError for a `tls/` endpoint
+    without `tls`."""
+    if tls is None and any(endpoint.startswith("tls/") for endpoint in listen):
+        raise TlsError(
+            "a tls/ listen endpoint needs the router's certificate: make one with "
+            "`swarm credentials DIR --tls`"
+        )
     router_password = credentials.passwords[ROUTER].get_secret_value()
+    transport: dict[str, Any] = {
+        "auth": {
+            "usrpwd": {
+                "user": ROUTER,
+                "password": router_password,
+                "dictionary_file": str(users_file),
+            }
+        }
+    }
+    if tls is not None:
+        transport["link"] = {"tls": tls_link(tls)}
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
-        "transport": {
-            "auth": {
-                "usrpwd": {
-                    "user": ROUTER,
-                    "password": router_password,
-                    "dictionary_file": str(users_file),
-                }
-            }
-        },
+        "transport": transport,
         "access_control": access_control(credentials.swarm, credentials.robots),
     }
 
 
-def write_router_config(directory: Path, credentials: CredentialSet, listen: Sequence[str]) -> Path:
+def write_router_config(
+    directory: Path,
+    credentials: CredentialSet,
+    listen: Sequence[str],
+    tls: TlsFiles | None = None,
+) -> Path:
     """Write the run's router config (mode 0600: it holds the router's password) beside the
     credentials written by `write_credential_set`; returns its path."""
     path = directory / ROUTER_CONFIG_FILE
     document = router_config_document(
-        credentials, (directory / ROUTER_USERS_FILE).resolve(), listen
+        credentials, (directory / ROUTER_USERS_FILE).resolve(), listen, tls
     )
     text = "// Generated for one run by `swarm up`; see services/router/access.py.\n"
     write_private_file(path, (text + json.dumps(document, indent=2) + "\n").encode("utf-8"))
