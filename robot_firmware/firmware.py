@@ -25,6 +25,12 @@ world epoch (`new_world_epoch`: the world restarted and its clock jumped) every 
 replay window goes, whatever its stamp.
 Time is an argument (`now_ns`); the class opens no
 socket and reads no clock, so a test can run it against a fabric model in one process.
+
+Who leads is not fixed by the mission: `Leadership` (robot_firmware/leadership.py) hears the
+term and role of every accepted frame (and the peers' liveliness, `set_peer_alive`), and each
+tick gives the control step its role (leader or follower), its slot relative to the acting
+leader (`slot_of`) and which peer that leader is.  Frames carry the robot's term and whether
+it leads.
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,6 +55,7 @@ from robot_firmware.control.controller import (
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from robot_firmware.control.trajectories import Trajectory
 from robot_firmware.drivers import Drivers
+from robot_firmware.leadership import Leadership, LeadershipParams, slot_of
 from robot_firmware.net.frames import (
     NO_RUN_ID,
     FrameDecoder,
@@ -80,6 +87,12 @@ class RobotMission:
     broadcast_rate_hz: float = 20.0
     sonar_rate_hz: float = 20.0
     watchdog_timeout_ms: int = 100
+    designated_leader: int | None = None
+    """Index of the scenario's leader (None: this robot if `is_leader`, else robot 0)."""
+    slots: tuple[tuple[float, float], ...] = ()
+    """Every robot's scenario slot (distance_m, angle_rad), by index; the leader's (0, 0).
+    Empty: only this robot's own slot is known."""
+    leadership: LeadershipParams = field(default_factory=LeadershipParams)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, name: str, rule_base: FuzzyRuleBase) -> RobotMission:
@@ -89,6 +102,10 @@ class RobotMission:
             raise ScenarioError(f"no robot named {name!r} in scenario {scenario.name!r}: {names}")
         index = names.index(name)
         spec = scenario.robots[index]
+        slots = tuple(
+            (r.slot.distance_m, math.radians(r.slot.angle_deg)) if r.slot else (0.0, 0.0)
+            for r in scenario.robots
+        )
         return cls(
             name=name,
             index=index,
@@ -101,11 +118,28 @@ class RobotMission:
             rule_base=rule_base,
             broadcast_rate_hz=scenario.radio.broadcast_rate_hz,
             sonar_rate_hz=scenario.sensors.sonar.rate_hz,
+            designated_leader=scenario.leader_index,
+            slots=slots,
         )
 
     @property
     def sonar_count(self) -> int:
         return len(self.params.sonar_beam_angles_rad)
+
+    @property
+    def leader_index(self) -> int:
+        """The scenario's (designated) leader."""
+        if self.designated_leader is not None:
+            return self.designated_leader
+        return self.index if self.is_leader else 0
+
+    @property
+    def slot_table(self) -> tuple[tuple[float, float], ...]:
+        """`slots`, or one built from this robot's own slot when the mission has none."""
+        if self.slots:
+            return self.slots
+        own = (self.slot_distance_m, self.slot_angle_rad)
+        return tuple(own if i == self.index else (0.0, 0.0) for i in range(len(self.names)))
 
 
 @dataclass(frozen=True)
@@ -149,6 +183,8 @@ class Firmware:
         self.peer_rate = np.zeros((n, 3))
         self.peer_stamp_s = np.full(n, -np.inf)
         self.peer_is_leader = np.zeros(n, dtype=bool)
+        self.leadership: Leadership | None = None
+        """Created at the first frame or tick, when the robot first knows the time."""
         self.sonar_gap_m = np.full(mission.sonar_count, np.inf)
         self.fix_pose = np.zeros(3)
         self._sequence: int | None = None
@@ -191,6 +227,8 @@ class Firmware:
         frame = self.decoder.decode(data, now_ns)
         if frame is None or frame.sender_id >= len(self.mission.names):
             return False
+        claims_lead = frame.role == Role.LEADER
+        self.leadership_at(now_ns).hear(frame.sender_id, frame.term, claims_lead, now_ns / NS_PER_S)
         if not frame.localised:
             self.unlocalised_peer_frames += 1
             return False
@@ -198,8 +236,52 @@ class Firmware:
         self.peer_pose[i] = (frame.x_m, frame.y_m, frame.theta_rad)
         self.peer_rate[i] = (frame.xdot_mps, frame.ydot_mps, frame.thetadot_radps)
         self.peer_stamp_s[i] = frame.timestamp_ns / NS_PER_S
-        self.peer_is_leader[i] = frame.role == Role.LEADER
+        self.peer_is_leader[i] = claims_lead
         return True
+
+    def leadership_at(self, now_ns: int) -> Leadership:
+        """The election state, made on first use with `now_ns` as the boot time."""
+        if self.leadership is None:
+            m = self.mission
+            self.leadership = Leadership(
+                index=m.index,
+                count=len(m.names),
+                designated_leader=m.leader_index,
+                boot_s=now_ns / NS_PER_S,
+                params=m.leadership,
+            )
+        return self.leadership
+
+    @property
+    def is_leader(self) -> bool:
+        """Whether this robot leads now (before its first tick: whether it is designated to)."""
+        if self.leadership is None:
+            return self.mission.is_leader
+        return self.leadership.is_leader
+
+    def set_peer_alive(self, peer: str, alive: bool, now_ns: int) -> None:
+        """The runtime saw robot `peer`'s liveliness token appear or go; unknown names are
+        ignored."""
+        if peer in self.mission.names:
+            index = self.mission.names.index(peer)
+            self.leadership_at(now_ns).set_alive(index, alive, now_ns / NS_PER_S)
+
+    def _take_role(self, now_ns: int) -> None:
+        """This tick's role and slot, and which peer leads (levels 3-4 read them)."""
+        leadership = self.leadership_at(now_ns)
+        t_s = now_ns / NS_PER_S
+        leadership.update(t_s)
+        acting = leadership.acting_leader(t_s)
+        m = self.mission
+        distance_m, angle_rad = slot_of(m.index, acting, m.leader_index, m.slot_table)
+        self.role = RobotRole(
+            is_leader=np.array(leadership.is_leader),
+            slot_distance_m=np.array(distance_m),
+            slot_angle_rad=np.array(angle_rad),
+        )
+        self.peer_is_leader[:] = False
+        if acting is not None and acting != m.index:
+            self.peer_is_leader[acting] = True
 
     def safe_stop(self) -> None:
         """No sense messages: duty 0 and outputs disabled through the motor driver, and no more
@@ -221,6 +303,7 @@ class Firmware:
         self._next_broadcast_ns = 0
         self._next_sonar_ns = 0
         self._fresh_state_pending = True
+        self.leadership_at(now_ns).resume(now_ns / NS_PER_S)
 
     def new_world_epoch(self, now_ns: int) -> None:
         """The world restarted and its clock jumped (to `now_ns`, backwards or forwards): every
@@ -232,6 +315,7 @@ class Firmware:
             self._key, own_id=self.mission.index, swarm_hash=self._swarm_hash, run_id=self._run_id
         )
         self.decoder.counters = counters
+        self.leadership_at(now_ns).new_epoch(now_ns / NS_PER_S)
         self.resume(now_ns)
 
     def control_tick(self, now_ns: int) -> TickReport:
@@ -256,7 +340,8 @@ class Firmware:
         if now_ns >= self._next_sonar_ns:
             d.sonar.trigger_all()
             self._next_sonar_ns = now_ns + self._sonar_period_ns
-        # Levels 2-4: the shared control step.
+        # Levels 2-4: the shared control step, in this tick's role.
+        self._take_role(now_ns)
         reference_pose, reference_rate = self.mission.trajectory.evaluate(t_s)
         inputs = ControlInputs(
             t_s=t_s,
@@ -298,7 +383,7 @@ class Firmware:
         pose = est.pose
         rate = est.rate
         frame = RadioFrame(
-            role=Role.LEADER if self.mission.is_leader else Role.FOLLOWER,
+            role=Role.LEADER if self.is_leader else Role.FOLLOWER,
             sender_id=self.mission.index,
             sequence=self._sequence,
             timestamp_ns=now_ns,
@@ -311,6 +396,7 @@ class Firmware:
             localised=bool(est.localised),
             swarm_hash=self._swarm_hash,
             run_id=self._run_id,
+            term=self.leadership_at(now_ns).term,
         )
         self.frames_sent += 1
         return encode(frame, self._key)

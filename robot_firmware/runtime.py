@@ -16,6 +16,9 @@ no longer kicks the watchdog, the fabric's time runs on so the watchdog IP cuts 
 the act message says so (duty 0, disabled, then watchdog expired).  The first tick after the
 gap re-localises and drops stale peer state (`Firmware.resume`).
 A liveliness token `alive/robot/<name>` tells the world and the launcher that the robot is up.
+The robot also watches its peers' tokens (`alive/robot/*`): a token that goes tells its leader
+election (robot_firmware/leadership.py) that the peer is gone, without waiting for its frames
+to go stale; changes are queued by the callback and handed over at the next tick.
 Telemetry (estimate, desired pose, gains, fuzzy output, counters, loop timing) is published at
 its own rate.
 """
@@ -154,6 +157,7 @@ class RobotProcess:
         self.scheduler = TickScheduler(self.period_ns)
         self._sense: deque[tuple[bytes, int]] = deque(maxlen=64)
         self._frames: deque[bytes] = deque(maxlen=1024)
+        self._peer_tokens: deque[tuple[str, bool]] = deque(maxlen=1024)
         self._admin = AdminQueue()
         self._wake = threading.Event()
         self.sense_counters = WireCounters()
@@ -179,6 +183,10 @@ class RobotProcess:
         self._frames.append(sample.payload.to_bytes())
         self._wake.set()
 
+    def _on_peer_token(self, sample: zenoh.Sample) -> None:
+        name = SwarmKeys.last_chunk(str(sample.key_expr))
+        self._peer_tokens.append((name, sample.kind == zenoh.SampleKind.PUT))
+
     # -- main loop: the scheduler decides, this shell does the I/O ------------------------
 
     def run(self) -> int:
@@ -192,10 +200,13 @@ class RobotProcess:
             tx_pub = session.declare_publisher(self.keys.radio_tx(name))
             telemetry_pub = session.declare_publisher(self.keys.telemetry(name))
             token = session.liveliness().declare_token(self.keys.alive("robot", name))
+            session.liveliness().declare_subscriber(
+                self.keys.alive_all("robot"), self._on_peer_token, history=True
+            )
             self.firmware.boot(self._tick_fabric)
             gc.collect()
             gc.freeze()  # boot-time objects leave the collector's work: shorter pauses in the loop
-            log.info("robot %s up (%s)", name, "leader" if self.mission.is_leader else "follower")
+            log.info("robot %s up (%s)", name, "leader" if self.firmware.is_leader else "follower")
             while not self.stop.is_set():
                 self._serve_queries()
                 self._take_sense()
@@ -284,6 +295,9 @@ class RobotProcess:
         telemetry_pub: zenoh.Publisher,
     ) -> None:
         self._advance_fabric_to(now_ns)
+        while self._peer_tokens:
+            peer, alive = self._peer_tokens.popleft()
+            self.firmware.set_peer_alive(peer, alive, now_ns)
         while self._frames:
             self.firmware.receive(self._frames.popleft(), now_ns)
         report = self.firmware.control_tick(now_ns)
@@ -334,6 +348,16 @@ class RobotProcess:
                 self._jitter_p99_ms = self.scheduler.timing.jitter_p99_ms()
             telemetry_pub.put(self.telemetry(now_ns).to_json_bytes())
 
+    def _leadership_fields(self) -> dict[str, Any]:
+        leadership = self.firmware.leadership
+        if leadership is None:
+            return {}
+        leader = leadership.index if leadership.is_leader else leadership.leader
+        return {
+            "term": leadership.term,
+            "leader": None if leader is None else self.mission.names[leader],
+        }
+
     def _telemetry_fields(self, now_ns: int) -> dict[str, Any]:
         report = self.last_report
         est = self.firmware.state.estimator
@@ -341,7 +365,8 @@ class RobotProcess:
         fields: dict[str, Any] = {
             "robot": self.config.name,
             "t_s": now_ns / NS_PER_S,
-            "role": "leader" if self.mission.is_leader else "follower",
+            "role": "leader" if self.firmware.is_leader else "follower",
+            **self._leadership_fields(),
             "localised": bool(est.localised),
             "estimate": tuple(float(v) for v in est.pose),
             "frames": self.firmware.decoder.counters.as_dict(),

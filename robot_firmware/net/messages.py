@@ -102,6 +102,12 @@ class TelemetryMessage(Message):
     robot: str
     t_s: float
     role: Role | None = None
+    """Whether the robot acts as leader now (robot_firmware/leadership.py), not its scenario
+    role: after a failover another robot leads."""
+    term: int | None = Field(default=None, ge=0)
+    """The leader term the robot is in (the term its frames carry)."""
+    leader: str | None = None
+    """The robot it follows or, leading, itself; None while it knows no live leader."""
     localised: bool = False
     estimate: Pose | None = None
     frames: dict[str, int] = Field(default_factory=dict)

@@ -17,8 +17,9 @@ What each identity may do (every key from robot_firmware/net/keys.py):
 | identity  | sends (ingress)                                      | receives (egress)            |
 |-----------|------------------------------------------------------|------------------------------|
 | robotN    | put wire/N/act, radio/tx/N, telemetry/N; token       | put wire/N/sense, radio/rx/N,|
-|           | alive/robot/N; subscribe wire/N/sense, radio/rx/N,   | clock; queries on admin/N/*  |
-|           | clock; serve (queryable, reply) admin/N/*            |                              |
+|           | alive/robot/N; subscribe wire/N/sense, radio/rx/N,   | clock; queries on admin/N/*; |
+|           | clock, tokens alive/robot/*; serve (queryable,       | robot tokens                 |
+|           | reply) admin/N/*                                     |                              |
 | world     | put wire/*/sense, radio/rx/*, clock, truth; token    | put wire/*/act, radio/tx/*,  |
 |           | alive/world/world; subscribe wire/*/act, radio/tx/*, | telemetry/*; robot tokens;   |
 |           | telemetry/*, tokens alive/robot/*; serve admin/world | queries on admin/world/*     |
@@ -119,6 +120,9 @@ def identity_grants(swarm: str, robots: Sequence[str]) -> dict[str, Grants]:
         _subscriber(robot, keys.sense(name), keys.radio_rx(name), keys.clock)
         _server(robot, keys.admin(name, "*"))
         _token(robot, keys.alive("robot", name))
+        # A robot's peers' tokens tell its leader election that a peer is gone at once
+        # (robot_firmware/leadership.py), rather than after the frames' time-out.
+        _token_watcher(robot, keys.alive_all("robot"))
     world = grants[WORLD] = Grants()
     _publisher(world, keys.sense("*"), keys.radio_rx("*"), keys.clock, keys.truth)
     _subscriber(world, keys.act_all, keys.radio_tx_all, keys.telemetry_all)
