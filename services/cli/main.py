@@ -32,6 +32,17 @@ from swarm_config.credentials import (
 )
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
 from swarm_config.settings import LayeredSettings, SettingsError
+from swarm_config.tls import (
+    DEFAULT_TLS_HOSTS,
+    TLS_DIR_NAME,
+    TLS_ROOT_CA_ENV,
+    TlsError,
+    TlsFiles,
+    generate_tls_files,
+    read_tls_files,
+    subject_alt_name,
+    tls_dir,
+)
 
 EXIT_USAGE = 2
 
@@ -41,6 +52,7 @@ class UsageError(Exception):
 
 
 DEFAULT_SCENARIO = str(DEFAULT_SCENARIO_PATH)
+DEFAULT_TLS_ENDPOINT = "tls/127.0.0.1:7447"
 DEFAULT_OPERATOR_CREDENTIALS = Path("runs/swarm") / CREDENTIALS_DIR_NAME / f"{OPERATOR}.json"
 MAX_SPEED_HELP = (
     "with --lockstep: run at most X simulated seconds per wall second, e.g. 1 to watch a "
@@ -162,6 +174,11 @@ def _cmd_credentials(args: argparse.Namespace) -> int:
     )
     swarm = _swarm(args)
     directory = Path(args.dir)
+    listen = args.listen or [DEFAULT_TLS_ENDPOINT if args.tls else DEFAULT_ENDPOINT]
+    try:
+        tls_files, tls_note = _tls_files_for(args, directory, swarm, listen)
+    except TlsError as exc:
+        raise UsageError(str(exc)) from None
     kept = False
     credentials = generate_credential_set(swarm, scenario.robot_names)
     if not args.rotate and directory.exists():
@@ -172,17 +189,46 @@ def _cmd_credentials(args: argparse.Namespace) -> int:
         if existing is not None and existing.swarm == swarm:
             credentials, kept = existing.with_new_run_id(), True
     write_credential_set(directory, credentials)
-    write_router_config(directory, credentials, args.listen or [DEFAULT_ENDPOINT])
+    write_router_config(directory, credentials, listen, tls_files)
     what = "kept the secrets, new run id" if kept else "new secrets"
     print(f"credentials for {', '.join(credentials.identities)} in {directory} ({what})")
+    if tls_files is not None:
+        print(
+            f"TLS: {tls_note}; router certificate {tls_files.router_certificate}, CA "
+            f"{tls_files.ca_certificate} (every client trusts it: ${TLS_ROOT_CA_ENV}=<its path>)"
+        )
     return 0
+
+
+def _tls_files_for(
+    args: argparse.Namespace, directory: Path, swarm: str, listen: Sequence[str]
+) -> tuple[TlsFiles | None, str]:
+    """`swarm credentials --tls`: the TLS files kept (unless --rotate) or made in DIR/tls/,
+    and what was done; checked before anything is written."""
+    if args.tls_host and not args.tls:
+        raise TlsError("--tls-host is for the router certificate of --tls")
+    if not args.tls:
+        if any(endpoint.startswith("tls/") for endpoint in listen):
+            raise TlsError("a tls/ --listen endpoint needs --tls (the router's certificate)")
+        return None, ""
+    directory_tls = tls_dir(directory)
+    if TlsFiles(directory_tls).complete() and not args.rotate:
+        if args.tls_host:
+            raise TlsError(
+                f"{directory_tls} already holds a CA and a router certificate; add --rotate "
+                "to replace them with new ones for --tls-host"
+            )
+        return read_tls_files(directory_tls), "kept the CA and router certificate"
+    hosts = args.tls_host or list(DEFAULT_TLS_HOSTS)
+    files = generate_tls_files(directory_tls, swarm, hosts)
+    return files, f"new CA, router certificate for {subject_alt_name(hosts)}"
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
     from services.launcher.launcher import Launcher, LaunchPlan
     from world.runtime import WorldConfig
 
-    endpoint = f"tcp/127.0.0.1:{args.port}"
+    endpoint = f"{'tls' if args.tls else 'tcp'}/127.0.0.1:{args.port}"
     # The world's settings, validated here once so that a mistake stops `swarm up` before
     # anything starts; the world process is given exactly these.
     world = _settings(
@@ -221,7 +267,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
     )
     try:
         launcher = Launcher(plan)
-    except CredentialsError as exc:
+    except (CredentialsError, TlsError) as exc:
         raise UsageError(str(exc)) from None
     _install_stop(launcher.stop)
 
@@ -242,6 +288,13 @@ def _cmd_up(args: argparse.Namespace) -> int:
             f"swarm command line uses {launcher.credentials_dir}/{OPERATOR}.json)",
             flush=True,
         )
+        if launcher.tls is not None:
+            print(
+                f"TLS: the router's certificate is signed by {launcher.tls.ca_certificate}; "
+                f"the swarm command line needs ${TLS_ROOT_CA_ENV}=<that path> and "
+                f"--connect {endpoint}",
+                flush=True,
+            )
         if plan.dashboard:
             print(
                 f"dashboard: open {plan.viewer_url}  (recording: {out_dir / 'dashboard.rrd'})",
@@ -554,6 +607,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--port", type=int, default=7447, help="router TCP port on 127.0.0.1")
     up.add_argument(
+        "--tls",
+        action="store_true",
+        help="links over TLS (tls/127.0.0.1:PORT) with the run's own CA in "
+        f"<credentials>/{TLS_DIR_NAME}/ (one there from `swarm credentials --tls` is used)",
+    )
+    up.add_argument(
         "--credentials",
         metavar="DIR",
         help=f"use the credentials in DIR (written by an earlier run or by `swarm credentials`; "
@@ -581,7 +640,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help=f"the router config's listen endpoint (repeatable; default {DEFAULT_ENDPOINT})",
+        help=f"the router config's listen endpoint (repeatable; default {DEFAULT_ENDPOINT}, "
+        f"with --tls {DEFAULT_TLS_ENDPOINT})",
+    )
+    creds.add_argument(
+        "--tls",
+        action="store_true",
+        help=f"also a CA and the router's TLS certificate in DIR/{TLS_DIR_NAME}/ (kept if "
+        "there, unless --rotate), named in the router config",
+    )
+    creds.add_argument(
+        "--tls-host",
+        action="append",
+        metavar="HOST",
+        help="a host name or IP address clients reach the router at, for its certificate "
+        f"(repeatable; default {' and '.join(DEFAULT_TLS_HOSTS)})",
     )
     creds.set_defaults(handler=_cmd_credentials)
 
@@ -732,7 +805,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         code: int = args.handler(args)
-    except (ScenarioError, UsageError) as exc:
+    except (ScenarioError, UsageError, TlsError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -22,6 +22,9 @@ Every run gets fresh credentials (swarm_config/credentials.py) in `<out>/credent
 file per identity (router, world, launcher, dashboard, operator, each robot), the router's
 user file and its config with the run's access control (services/router/access.py).  Each
 child is given the path of its own file in `$SWARM_CREDENTIALS_FILE`, never a secret.
+With a `tls/HOST:PORT` endpoint the router listens with a certificate for HOST signed by the
+run's own CA (swarm_config/tls.py, in `<credentials>/tls/`; one already there is used) and
+every child trusts that CA (`$SWARM_TLS_ROOT_CA`, the path of `ca.pem`).
 """
 
 from __future__ import annotations
@@ -64,6 +67,14 @@ from swarm_config.credentials import (
     write_credential_set,
 )
 from swarm_config.settings import describe_validation_error
+from swarm_config.tls import (
+    DEFAULT_TLS_HOSTS,
+    TLS_ROOT_CA_ENV,
+    TlsFiles,
+    generate_tls_files,
+    read_tls_files,
+    tls_dir,
+)
 
 log = logging.getLogger("swarm.launcher")
 
@@ -121,6 +132,17 @@ class LaunchPlan:
     in `<out_dir>/credentials/`."""
 
     @property
+    def uses_tls(self) -> bool:
+        """Whether the router listens on TLS (a `tls/HOST:PORT` endpoint)."""
+        return self.endpoint.startswith("tls/")
+
+    @property
+    def endpoint_host(self) -> str:
+        """HOST of the endpoint `proto/HOST:PORT` (without an IPv6 address's brackets)."""
+        address = self.endpoint.split("/", 1)[-1].split("?", 1)[0]
+        return address.rsplit(":", 1)[0].strip("[]")
+
+    @property
     def viewer_url(self) -> str:
         """The Rerun web viewer's address with its data source filled in."""
         source = quote(f"rerun+http://127.0.0.1:{self.grpc_port}/proxy", safe="")
@@ -148,7 +170,10 @@ class Launcher:
             given = read_credential_set(plan.credentials_dir, plan.robots)
             self.credentials = given.with_new_run_id()
         self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
-        router_config = write_router_config(self.credentials_dir, self.credentials, [plan.endpoint])
+        self.tls = self._tls_files() if plan.uses_tls else None
+        router_config = write_router_config(
+            self.credentials_dir, self.credentials, [plan.endpoint], self.tls
+        )
         cli = [sys.executable, "-m", "services.cli.main"]
         connect = ["--connect", plan.endpoint, "--swarm", plan.swarm]
         self.children["router"] = Child(
@@ -193,11 +218,22 @@ class Launcher:
             ]
             self.children["dashboard"] = Child("dashboard", dashboard, logs / "dashboard.log")
 
+    def _tls_files(self) -> TlsFiles:
+        """The TLS files in the credentials directory, made now (a new CA) unless a complete
+        set is there already."""
+        directory = tls_dir(self.credentials_dir)
+        if TlsFiles(directory).complete():
+            return read_tls_files(directory)
+        hosts = tuple(dict.fromkeys((*DEFAULT_TLS_HOSTS, self.plan.endpoint_host)))
+        return generate_tls_files(directory, self.plan.swarm, hosts)
+
     def _env(self, name: str) -> dict[str, str]:
         env = dict(os.environ)
         env.update(self.plan.extra_env)
         env.pop("SWARM_KEY", None)  # secrets never travel in a child's environment
         env[CREDENTIALS_FILE_ENV] = str(self.credential_files[name])
+        if self.tls is not None:
+            env[TLS_ROOT_CA_ENV] = str(self.tls.ca_certificate.resolve())
         env["PYTHONUNBUFFERED"] = "1"
         return env
 
@@ -281,7 +317,8 @@ class Launcher:
         """Start everything and supervise until the world ends or a stop is asked."""
         self.start("router")
         launcher = self.credentials.for_identity(LAUNCHER)
-        with open_client([self.plan.endpoint], credentials=launcher) as session:
+        ca = self.tls.ca_certificate if self.tls is not None else None
+        with open_client([self.plan.endpoint], credentials=launcher, tls_root_ca=ca) as session:
             session.declare_queryable(self.keys.admin("launcher", "*"), self._admin.on_query)
             token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
             self.start("world")
