@@ -237,6 +237,8 @@ class WorldProcess:
         )
         self._checkpoint_writer: CheckpointWriter | None = None
         self.resumed_from: LoadedCheckpoint | None = None
+        self.resumes: list[dict[str, float | int]] = []
+        """Each restart of this run's world from a checkpoint: its time and tick."""
         self.epoch = new_epoch()
         """This start of the world, on every clock and sense message (DESIGN.md §7.1)."""
         if self.checkpoints is not None:
@@ -257,6 +259,7 @@ class WorldProcess:
             "engine": self.engine.checkpoint_state(),
             "lockstep": self.barrier.export_state(),
             "epoch": self.epoch,
+            "resumes": self.resumes,
             "next_sense_ns": self.next_sense_ns,
             "counters": {
                 "acts_accepted": self.act_counters.accepted,
@@ -279,6 +282,9 @@ class WorldProcess:
             ] + [int(counters["spoofed_frames"]), int(state["next_sense_ns"])]
             lockstep = state["lockstep"]
             LockstepBarrier(self.names).resume(lockstep)
+            resumes = [
+                {"t_s": float(r["t_s"]), "tick": int(r["tick"])} for r in state.get("resumes", [])
+            ]
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise CheckpointError(f"the world's part does not fit: {exc!r}") from None
         self.engine.restore_checkpoint(state["engine"])
@@ -287,6 +293,7 @@ class WorldProcess:
         self.act_counters.dropped.update(dropped)
         self.malformed_telemetry, self.unknown_senders, self.spoofed_frames = numbers[1:4]
         self.next_sense_ns = numbers[4]
+        self.resumes = [*resumes, {"t_s": self.engine.t_s, "tick": self.tick}]
         self.epoch = new_epoch(avoid=state.get("epoch"))
         self._next_checkpoint_ns = self.engine.t_ns + self.checkpoint_period_ns
 
@@ -651,6 +658,7 @@ class WorldProcess:
             "sense": {name: self.sense_drops.get(name) for name in self.names},
         }
         summary["malformed_telemetry"] = self.malformed_telemetry
+        summary["world_resumes"] = list(self.resumes)
         return summary
 
     def write_summary(self, final: bool = False) -> None:

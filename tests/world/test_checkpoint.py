@@ -218,8 +218,11 @@ def test_restarted_world_process_resumes_from_the_newest_valid_checkpoint(
     assert restarted.tick == 100 and restarted.engine.t_ns == 100 * PERIOD_NS
     assert restarted.engine.checkpoint_state() == saved[100]
     assert restarted.spoofed_frames == 6
+    assert restarted.summary()["world_resumes"] == [{"t_s": 1.0, "tick": 100}]
 
     _flip_a_bit(store.paths()[0][1])
     again = _world(tmp_path)
     assert again.tick == 50 and again.engine.checkpoint_state() == saved[50]
     assert again.spoofed_frames == 3
+    assert again.resumes == [{"t_s": 0.5, "tick": 50}]
+    assert again.epoch not in (0, restarted.epoch)
