@@ -195,3 +195,63 @@ def test_killed_world_stops_every_robot_and_a_restarted_one_resumes_its_checkpoi
     assert status["metrics"]["collisions"] == 0, status["metrics"]
     for name, delay_s in off_after_s.items():
         assert delay_s is not None and delay_s <= MOTORS_OFF_WITHIN_S, (name, delay_s)
+
+
+@pytest.mark.parametrize("live_swarm", [("--lockstep",)], indirect=True)
+def test_lockstep_world_restarted_resumes_its_checkpoint_and_the_robots_answer_it(
+    live_swarm: LiveSwarm,
+) -> None:
+    with _listening(live_swarm) as (heard, session):
+        live_swarm.wait_for(
+            lambda: (
+                (s := _world_status(session)).get("t_s", 0.0) >= STEADY_FLIGHT_S
+                and (e := _formation_error_m(s)) is not None
+                and e < FORMATION_BOUND_M
+            ),
+            timeout_s=120.0,
+            describe="the formation under 5 cm before the kill",
+        )
+        assert _world_status(session)["clock_mode"] == "lockstep"
+        old_epoch = heard.snapshot()[0][-1][1].epoch
+        assert live_swarm.admin("kill", "world")["killed"]
+        time.sleep(0.5)
+        killed_at_sim_s = heard.snapshot()[0][-1][1].t_ns / 1e9
+        restart = live_swarm.admin("restart", "world")
+        assert restart.get("restarted") == "world", restart
+        resumed = live_swarm.wait_for(
+            lambda: next((c for _, c in heard.snapshot()[0] if c.epoch != old_epoch), None),
+            timeout_s=60.0,
+            describe="a clock message of the restarted world",
+        )
+        resumed_at_sim_s = resumed.t_ns / 1e9
+        formation_back: dict[str, float] = {}
+
+        def formation_back_under_bound() -> bool:
+            status = _world_status(session)
+            error = _formation_error_m(status)
+            if error is None or error >= FORMATION_BOUND_M:
+                return False
+            formation_back.update(t_s=status["t_s"], error_m=error)
+            return True
+
+        live_swarm.wait_for(formation_back_under_bound, timeout_s=120.0, every_s=0.1)
+        # Every robot answers the resumed world's ticks: time goes on past the kill.
+        live_swarm.wait_for(
+            lambda: _world_status(session).get("t_s", 0.0) > killed_at_sim_s + 2.0,
+            describe="the resumed lockstep world past the kill",
+        )
+        status = _world_status(session)
+        back_after_s = formation_back["t_s"] - resumed_at_sim_s
+        print(
+            f"\nlockstep world killed at t = {killed_at_sim_s:.3f} s, resumed at "
+            f"t = {resumed_at_sim_s:.3f} s ({killed_at_sim_s - resumed_at_sim_s:.3f} s before); "
+            f"formation under 5 cm {back_after_s:.2f} s after the resume "
+            f"(max follower error {formation_back['error_m'] * 100:.1f} cm); collisions "
+            f"{status['metrics']['collisions']}; live {status['live']}"
+        )
+    assert sorted(status["live"]) == sorted(ROBOTS)
+    assert resumed_at_sim_s > 0.0
+    assert killed_at_sim_s - resumed_at_sim_s >= 0.0
+    assert killed_at_sim_s - resumed_at_sim_s <= RESUME_AT_MOST_S_BEFORE_KILL
+    assert back_after_s <= FORMATION_BACK_WITHIN_S
+    assert status["metrics"]["collisions"] == 0, status["metrics"]
