@@ -1,18 +1,41 @@
-"""The three-robot swarm as real processes talking over a real Zenoh router on loopback."""
+"""The three-robot swarm as real processes talking over a real Zenoh router on loopback.
+
+Whatever depends on how fast the host runs the processes is asserted in lockstep
+(`swarm up --lockstep`: the world waits for every live robot each tick, so a loaded machine only
+makes a run slower): tracking and formation bounds, collisions, a killed robot's body, a
+restarted robot's return to its slot.  Real-time runs assert only what does not depend on timing:
+the processes come up, admin verbs answer, a killed robot leaves and a restarted one comes back,
+counters agree with each other and with the run's length.  Wall-clock figures (deadline misses,
+jitter, real-time factor) are measured by bench/swarm_runtime.py, not asserted here.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 import signal
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
+import zenoh
 
-from tests.integration.conftest import LiveSwarm, run_swarm, swarm_cli
+from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.session import open_client
+from swarm_config.scenario import load_scenario
+from tests.integration.conftest import PAPER, LiveSwarm, run_swarm, swarm_cli
 
 pytestmark = pytest.mark.slow
+
+SWARM = "lab"
+_SCENARIO = load_scenario(PAPER)
+ROBOTS = _SCENARIO.robot_names
+CONTROL_PERIOD_S = _SCENARIO.controller_params().control_period_s
+BROADCAST_RATE_HZ = _SCENARIO.radio.broadcast_rate_hz
 
 
 def _assert_paper_bounds(summary: dict, formation_bound_m: float = 0.03) -> None:
@@ -23,13 +46,75 @@ def _assert_paper_bounds(summary: dict, formation_bound_m: float = 0.03) -> None
     assert summary["min_obstacle_clearance_m"] > 0.0
 
 
-def test_lockstep_swarm_agrees_with_the_batch_simulator(tmp_path: Path) -> None:
-    summary = run_swarm(tmp_path / "swarm", "--lockstep", "--duration", "60")
+def _query(live_swarm: LiveSwarm, target: str, verb: str) -> dict[str, Any]:
+    """The JSON reply of `admin/<target>/<verb>`, or {} when nobody answered (yet)."""
+    with open_client([live_swarm.endpoint]) as session:
+        for reply in session.get(SwarmKeys(SWARM).admin(target, verb), timeout=3.0):
+            if reply.ok is not None:
+                data = json.loads(reply.ok.payload.to_bytes())
+                return data if isinstance(data, dict) else {}
+    return {}
+
+
+def _world_status(live_swarm: LiveSwarm) -> dict[str, Any]:
+    return _query(live_swarm, "world", "status") or {"live": [], "tick": -1}
+
+
+def _left_the_world(live_swarm: LiveSwarm, robot: str) -> bool:
+    """The world answers, and no longer counts `robot` among the live."""
+    status = _query(live_swarm, "world", "status")
+    return bool(status) and robot not in status["live"]
+
+
+def _all_running(live_swarm: LiveSwarm) -> dict[str, Any] | None:
+    status = live_swarm.admin("status")
+    if status.get("ok") and all(p["running"] for p in status["processes"].values()):
+        return status
+    return None
+
+
+class TruthLog:
+    """Every `truth` message the world publishes while it is open (poses and alive flags)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._messages: list[dict[str, Any]] = []
+
+    def on_sample(self, sample: zenoh.Sample) -> None:  # a zenoh callback: store and return
+        message = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self._messages.append(message)
+
+    def messages(self) -> list[dict[str, Any]]:
+        with self._lock:
+            return list(self._messages)
+
+
+@contextmanager
+def _truth_log(live_swarm: LiveSwarm) -> Iterator[TruthLog]:
+    log = TruthLog()
+    with open_client([live_swarm.endpoint]) as session:
+        subscriber = session.declare_subscriber(SwarmKeys(SWARM).truth, log.on_sample)
+        try:
+            yield log
+        finally:
+            subscriber.undeclare()
+
+
+def test_lockstep_swarm_meets_the_paper_bounds_and_broadcasts_every_period(
+    tmp_path: Path,
+) -> None:
+    duration_s = 60.0
+    summary = run_swarm(tmp_path / "swarm", "--lockstep", "--duration", str(duration_s))
     assert summary["clock_mode"] == "lockstep"
-    assert summary["duration_s"] == pytest.approx(60.0)
+    assert summary["duration_s"] == pytest.approx(duration_s)
     _assert_paper_bounds(summary)
+    # In lockstep every robot answers every tick, so each broadcasts on every one of its
+    # 20 Hz slots: 3 robots x 20 Hz x 60 s, and each broadcast reaches the two others.
     radio = summary["radio"]
-    assert radio["broadcasts"] >= 3 * 20 * 60 - 3
+    assert radio["broadcasts"] == round(len(ROBOTS) * BROADCAST_RATE_HZ * duration_s)
+    assert radio["frames"] == (len(ROBOTS) - 1) * radio["broadcasts"]
+    assert radio["delivered"] + radio["dropped"] == radio["frames"]
     assert summary["malformed_acts"] == 0
 
 
@@ -52,17 +137,29 @@ def test_max_speed_without_lockstep_is_a_usage_error(tmp_path: Path) -> None:
     assert not (tmp_path / "up").exists()
 
 
-def test_real_time_swarm_holds_formation_and_reports_loop_timing(tmp_path: Path) -> None:
-    # Deadline misses are wall-clock figures: bench/swarm_runtime.py measures them over several
-    # runs; here the run must hold the formation and report its timing.
+def test_real_time_swarm_reports_loop_timing_consistent_with_its_length(tmp_path: Path) -> None:
+    # How many deadlines a loaded host misses is bench/swarm_runtime.py's figure; here the
+    # counters must be there and agree with each other and with the length of the run.
     summary = run_swarm(tmp_path / "rt", "--duration", "32")
     assert summary["clock_mode"] == "real_time"
-    _assert_paper_bounds(summary)
-    for name, timing in summary["control_timing"].items():
+    assert summary["duration_s"] == pytest.approx(32.0, abs=2 * CONTROL_PERIOD_S)
+    periods = round(summary["duration_s"] / CONTROL_PERIOD_S)
+    for name in ROBOTS:
+        timing = summary["control_timing"][name]
         assert timing is not None, name
-        assert timing["ticks"] > 2500, (name, timing)
-        assert 0 <= timing["deadline_misses"] <= timing["ticks"]
-        assert timing["period_jitter_p99_ms"] is not None
+        # A tick never starts less than a period after the one before, so a robot counts at
+        # most one tick per control period of the run (plus the few periods between the end of
+        # the world's loop and its reading the last telemetry).
+        assert 0 < timing["ticks"] <= periods + 50, (name, timing, periods)
+        misses = timing["recent_miss_ticks"]
+        assert len(misses) == min(timing["deadline_misses"], 10), (name, timing)
+        assert misses == sorted(set(misses)), (name, timing)
+        assert all(1 <= tick <= timing["ticks"] for tick in misses), (name, timing)
+        assert timing["period_jitter_p99_ms"] >= 0.0, (name, timing)
+    radio = summary["radio"]
+    assert 0 < radio["broadcasts"] <= round(len(ROBOTS) * BROADCAST_RATE_HZ * 32.0) + len(ROBOTS)
+    assert radio["frames"] <= (len(ROBOTS) - 1) * radio["broadcasts"]
+    assert summary["malformed_acts"] == 0
 
 
 def test_lossy_radio_keeps_the_formation_within_six_centimetres(tmp_path: Path) -> None:
@@ -110,50 +207,66 @@ def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
     assert live_swarm.admin("net", "get")["profile"]["loss"] == 0.2
 
 
-def test_killed_robot_is_a_power_cut_and_a_restarted_one_rejoins(live_swarm: LiveSwarm) -> None:
-    def world_status() -> dict:
-        return live_swarm.admin("status")
-
-    live_swarm.wait_for(
-        lambda: all(p["running"] for p in world_status()["processes"].values()), timeout_s=90
-    )
+def test_killed_robot_leaves_and_a_restarted_one_comes_back(live_swarm: LiveSwarm) -> None:
+    live_swarm.wait_for(lambda: _all_running(live_swarm))
+    live_swarm.wait_for(lambda: len(_world_status(live_swarm)["live"]) == len(ROBOTS))
     killed = live_swarm.admin("kill", "robot2")
     assert killed == {"ok": True, "killed": True}
-    processes = world_status()["processes"]
+    processes = live_swarm.admin("status")["processes"]
     assert not processes["robot2"]["running"] and processes["robot2"]["killed"]
     assert processes["robot1"]["running"] and processes["robot3"]["running"]
+    # Its liveliness token goes with the process: the world counts it out.
+    live_swarm.wait_for(lambda: _left_the_world(live_swarm, "robot2"))
     restarted = live_swarm.admin("restart", "robot2")
     assert restarted["ok"] and restarted["restarted"] == "robot2"
-    live_swarm.wait_for(lambda: world_status()["processes"]["robot2"]["running"])
+    live_swarm.wait_for(lambda: live_swarm.admin("status")["processes"]["robot2"]["running"])
     log = live_swarm.out / "logs" / "robot2.log"
-    live_swarm.wait_for(lambda: log.read_text().count("robot robot2 up") == 2, timeout_s=90)
-    # It boots, re-localises from the positioning fix and rejoins the formation.
-    live_swarm.wait_for(
-        lambda: _world_status(live_swarm).get("position_errors_m", {}).get("robot2", 1.0) < 0.05,
-        timeout_s=90,
-    )
+    live_swarm.wait_for(lambda: log.read_text().count("robot robot2 up") == 2)
+    live_swarm.wait_for(lambda: "robot2" in _world_status(live_swarm)["live"])
+    # The new process re-localises from the positioning fix.
+    live_swarm.wait_for(lambda: _query(live_swarm, "robot2", "status").get("localised"))
     unknown = live_swarm.cli("kill", "robot7")
-    assert unknown.returncode == 1 and "no robot" in unknown.stdout
-    summary_path = live_swarm.out / "summary.json"
-    live_swarm.wait_for(summary_path.exists, timeout_s=90)
-    assert json.loads(summary_path.read_text())["collisions"] == 0
+    assert unknown.returncode == 1 and "no process 'robot7'" in unknown.stdout
 
 
-@pytest.mark.parametrize("live_swarm", [("--lockstep",)], indirect=True)
-def test_lockstep_does_not_hang_on_a_dead_robot(live_swarm: LiveSwarm) -> None:
-    def world() -> dict:
+# Paced at (at most) one simulated second per wall second: an unpaced lockstep world and its
+# robots take all the CPU they can get, which starves the `swarm restart` command on a loaded
+# host; pacing changes no result, only how long the run takes.
+@pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "1")], indirect=True)
+def test_lockstep_killed_robot_is_a_power_cut_and_a_restarted_one_rejoins(
+    live_swarm: LiveSwarm,
+) -> None:
+    def world() -> dict[str, Any]:
         return _world_status(live_swarm)
 
-    first = live_swarm.wait_for(lambda: (s := world()) and len(s["live"]) == 3 and s, 60)
+    first = live_swarm.wait_for(lambda: (s := world()) and len(s["live"]) == len(ROBOTS) and s)
     assert first["clock_mode"] == "lockstep"
-    assert live_swarm.admin("kill", "robot3")["killed"]
-    live_swarm.wait_for(lambda: "robot3" not in world()["live"], timeout_s=90)
-    after_kill = world()["tick"]
-    live_swarm.wait_for(lambda: world()["tick"] > after_kill + 100, timeout_s=90)
+    with _truth_log(live_swarm) as truth:
+        assert live_swarm.admin("kill", "robot3")["killed"]
+        live_swarm.wait_for(lambda: _left_the_world(live_swarm, "robot3"))
+        # The world does not wait for a dead robot: time goes on without it.
+        after_kill = world()["tick"]
+        live_swarm.wait_for(lambda: world()["tick"] > after_kill + 300)
+        # A power cut: no more duty reaches its motors, which spin down within a few motor time
+        # constants (50 ms); from then on its body stays where it stopped.
+        dead = [
+            m["robots"]["robot3"]["pose"]
+            for m in truth.messages()
+            if not m["robots"]["robot3"]["alive"] and m["tick"] >= after_kill + 100
+        ]
+    assert len(dead) >= 10, len(dead)
+    for pose in dead[1:]:
+        assert abs(pose[0] - dead[0][0]) < 1e-4 and abs(pose[1] - dead[0][1]) < 1e-4, pose
+        assert abs(pose[2] - dead[0][2]) < 1e-3, pose
     live_swarm.admin("restart", "robot3")
-    live_swarm.wait_for(lambda: "robot3" in world()["live"], timeout_s=90)
+    live_swarm.wait_for(lambda: "robot3" in world()["live"])
     rejoined = world()["tick"]
-    live_swarm.wait_for(lambda: world()["tick"] > rejoined + 100, timeout_s=90)
+    live_swarm.wait_for(lambda: world()["tick"] > rejoined + 100)
+    # It boots, re-localises from the positioning fix and drives back into its slot.
+    live_swarm.wait_for(lambda: world()["position_errors_m"]["robot3"] < 0.05)
+    metrics = world()["metrics"]
+    assert metrics["collisions"] == 0, metrics
+    assert metrics["min_robot_separation_m"] > 0.0, metrics
 
 
 @pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "0.002")], indirect=True)
@@ -182,7 +295,7 @@ def test_fuzzy_parameters_are_replaced_on_a_live_robot(
     good = tmp_path / "good.yaml"
     good.write_text("error_centres: [-1.0, 0.0, 1.0]\nrate_centres: [-1.0, -0.3, 0.3, 1.0]\n")
     reply = live_swarm.admin("params", "robot2", str(good))
-    assert reply == {"ok": True, "rule_count": 12}
+    assert reply["ok"] is True and reply["rule_count"] == 12, reply
     assert live_swarm.admin("params", "robot2")["parameters"]["error_centres"] == [-1, 0, 1]
     bad = tmp_path / "bad.yaml"
     bad.write_text("error_centres: [1.0, 0.0]\nrate_centres: [-1.0, 1.0]\n")
@@ -191,21 +304,9 @@ def test_fuzzy_parameters_are_replaced_on_a_live_robot(
     assert live_swarm.admin("params", "robot2")["parameters"]["error_centres"] == [-1, 0, 1]
 
 
-def _world_status(live_swarm: LiveSwarm) -> dict:
-    from services.launcher.launcher import admin_request
-
-    reply = admin_request("lab", live_swarm.endpoint, "world", "status", None, 3.0)
-    return reply or {"live": [], "tick": -1}
-
-
 def test_clients_reconnect_after_the_router_restarts(live_swarm: LiveSwarm) -> None:
-    status = live_swarm.wait_for(
-        lambda: (
-            (s := live_swarm.admin("status")).get("ok")
-            and all(p["running"] for p in s["processes"].values())
-            and s
-        )
-    )
+    status = live_swarm.wait_for(lambda: _all_running(live_swarm))
+    live_swarm.wait_for(lambda: len(_world_status(live_swarm)["live"]) == len(ROBOTS))
     os.kill(status["processes"]["router"]["pid"], signal.SIGKILL)
     restarted = live_swarm.wait_for(
         lambda: (
@@ -213,16 +314,21 @@ def test_clients_reconnect_after_the_router_restarts(live_swarm: LiveSwarm) -> N
             and s["processes"]["router"]["restarts"] == 1
             and s["processes"]["router"]["running"]
             and s
-        ),
-        timeout_s=90,
+        )
     )
     assert restarted["processes"]["router"]["pid"] != status["processes"]["router"]["pid"]
-    # World and robots find the new router, re-declare their tokens and carry on.
+    # World and robots find the new router, re-declare their tokens and carry on: the world
+    # ticks, and every robot answers its queries and hears its peers' frames again.
     world = live_swarm.wait_for(
-        lambda: len((s := _world_status(live_swarm))["live"]) == 3 and s, timeout_s=90
+        lambda: len((s := _world_status(live_swarm))["live"]) == len(ROBOTS) and s
     )
     live_swarm.wait_for(lambda: _world_status(live_swarm)["tick"] > world["tick"] + 100)
-    live_swarm.wait_for(
-        lambda: max(_world_status(live_swarm)["position_errors_m"].values()) < 0.05,
-        timeout_s=90,
-    )
+    for name in ROBOTS:
+        heard = live_swarm.wait_for(lambda name=name: _query(live_swarm, name, "status"))
+        accepted = heard["frames"]["accepted"]
+        live_swarm.wait_for(
+            lambda name=name, accepted=accepted: (
+                _query(live_swarm, name, "status").get("frames", {}).get("accepted", 0)
+                > accepted + 10
+            )
+        )
