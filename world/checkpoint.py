@@ -201,16 +201,18 @@ class CheckpointStore:
 
 
 class CheckpointWriter:
-    """Writes checkpoints on a thread of its own, so that fsync never holds up the world loop.
+    """Encodes and writes checkpoints on a thread of its own, so that neither the encoding nor
+    fsync holds up the world loop.
 
-    `submit` hands over an encoded checkpoint and returns at once; if the previous one is
-    still being written, the newer replaces any that waits (only the newest matters)."""
+    `submit` hands over a state (JSON-able values only, which nobody changes afterwards) and
+    returns at once; if the previous one is still being written, the newer replaces any that
+    waits (only the newest matters)."""
 
     def __init__(self, store: CheckpointStore) -> None:
         self.store = store
         self.written = 0
         self.failures = 0
-        self._pending: tuple[int, bytes] | None = None
+        self._pending: tuple[int, Mapping[str, object]] | None = None
         self._lock = threading.Lock()
         self._ready = threading.Condition(self._lock)
         self._closing = False
@@ -218,9 +220,9 @@ class CheckpointWriter:
         self._thread = threading.Thread(target=self._run, name="checkpoint-writer", daemon=True)
         self._thread.start()
 
-    def submit(self, tick: int, data: bytes) -> None:
+    def submit(self, tick: int, state: Mapping[str, object]) -> None:
         with self._lock:
-            self._pending = (tick, data)
+            self._pending = (tick, state)
             self._ready.notify()
 
     def flush(self, timeout_s: float = 10.0) -> None:
@@ -241,11 +243,11 @@ class CheckpointWriter:
                 self._ready.wait_for(lambda: self._pending is not None or self._closing)
                 if self._pending is None:
                     return
-                tick, data = self._pending
+                tick, state = self._pending
                 self._pending = None
                 self._busy = True
             try:
-                self.store.save_encoded(tick, data)
+                self.store.save(tick, state)
                 self.written += 1
             except OSError as exc:
                 self.failures += 1

@@ -262,7 +262,11 @@ class WorldEngine:
                 "sent": self.radio.sent,
                 "delivered": self.radio.delivered,
                 "dropped": self.radio.dropped,
-                "latencies_ns": encode_array(np.array(self.radio.latencies_ns, dtype=np.int64)),
+                "latencies_ns": encode_array(
+                    np.fromiter(
+                        self.radio.latencies_ns, dtype=np.int64, count=len(self.radio.latencies_ns)
+                    )
+                ),
             },
             "queue": [
                 [f.arrival_ns, f.order, f.receiver, f.sender, f.sent_ns, f.payload.hex()]

@@ -18,8 +18,9 @@ Clock modes:
 
 With an output directory the world checkpoints its whole state (engine, lockstep bookkeeping,
 counters) every `checkpoint_every_s` simulated seconds (at most 1) into `<out>/checkpoints/`,
-written on a thread of its own, durably and atomically (world/checkpoint.py); a world started
-on a directory that holds one resumes from the newest valid checkpoint instead of t = 0.
+encoded and written on a thread of its own, durably and atomically (world/checkpoint.py); a
+world started on a directory that holds one resumes from the newest valid checkpoint instead of
+t = 0.
 Every start of the world has a new random epoch on its clock and sense messages, so the
 robots know when the clock jumped (robot_firmware/tick_scheduler.py).
 
@@ -99,7 +100,6 @@ from world.checkpoint import (
     CheckpointStore,
     CheckpointWriter,
     LoadedCheckpoint,
-    encode_checkpoint,
 )
 from world.engine import NS_PER_S, WorldEngine
 from world.lockstep import LockstepBarrier, LockstepPacer
@@ -259,7 +259,7 @@ class WorldProcess:
             "engine": self.engine.checkpoint_state(),
             "lockstep": self.barrier.export_state(),
             "epoch": self.epoch,
-            "resumes": self.resumes,
+            "resumes": list(self.resumes),
             "next_sense_ns": self.next_sense_ns,
             "counters": {
                 "acts_accepted": self.act_counters.accepted,
@@ -301,7 +301,7 @@ class WorldProcess:
         if self._checkpoint_writer is None or self.engine.t_ns < self._next_checkpoint_ns:
             return
         self._next_checkpoint_ns = self.engine.t_ns + self.checkpoint_period_ns
-        self._checkpoint_writer.submit(self.tick, encode_checkpoint(self.checkpoint_state()))
+        self._checkpoint_writer.submit(self.tick, self.checkpoint_state())
 
     @property
     def tick(self) -> int:
@@ -457,9 +457,7 @@ class WorldProcess:
             finally:
                 if self._checkpoint_writer is not None:
                     if self.checkpoints is not None and self.engine.t_ns > 0:
-                        self._checkpoint_writer.submit(
-                            self.tick, encode_checkpoint(self.checkpoint_state())
-                        )
+                        self._checkpoint_writer.submit(self.tick, self.checkpoint_state())
                     self._checkpoint_writer.close()
                 self.write_summary(final=True)
                 token.undeclare()

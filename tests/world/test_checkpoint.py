@@ -12,6 +12,7 @@ from swarm_config.scenario import load_scenario
 from world.checkpoint import (
     CheckpointError,
     CheckpointStore,
+    CheckpointWriter,
     decode_checkpoint,
     encode_checkpoint,
     write_bytes_atomically,
@@ -226,3 +227,15 @@ def test_restarted_world_process_resumes_from_the_newest_valid_checkpoint(
     assert again.spoofed_frames == 3
     assert again.resumes == [{"t_s": 0.5, "tick": 50}]
     assert again.epoch not in (0, restarted.epoch)
+
+
+def test_writer_thread_writes_the_newest_state_submitted(tmp_path: Path) -> None:
+    store = CheckpointStore(tmp_path / "checkpoints")
+    writer = CheckpointWriter(store)
+    for tick in range(1, 30):
+        writer.submit(tick, {"tick": tick})
+    writer.close()
+    loaded = store.load_latest()
+    assert loaded is not None and loaded.tick == 29 and loaded.state == {"tick": 29}
+    assert 1 <= writer.written <= 29 and writer.failures == 0
+    assert len(store.paths()) <= 2
