@@ -186,7 +186,11 @@ class CheckpointStore:
     ) -> LoadedCheckpoint | None:
         """The newest checkpoint that passes every check, and that `restore` (if given) takes
         without raising CheckpointError; refused ones are logged and set aside as
-        `*.refused`.  None when there is none."""
+        `*.refused`.  None when there is none.  Temporary files a killed writer left behind
+        are deleted."""
+        if self.directory.is_dir():
+            for leftover in self.directory.glob(".world-*.ckpt.*"):
+                leftover.unlink(missing_ok=True)
         for tick, path in self.paths():
             try:
                 state = decode_checkpoint(path.read_bytes())

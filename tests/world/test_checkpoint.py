@@ -3,6 +3,10 @@
 import json
 import logging
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -239,3 +243,37 @@ def test_writer_thread_writes_the_newest_state_submitted(tmp_path: Path) -> None
     assert loaded is not None and loaded.tick == 29 and loaded.state == {"tick": 29}
     assert 1 <= writer.written <= 29 and writer.failures == 0
     assert len(store.paths()) <= 2
+
+
+_WRITER_LOOP = """
+import sys
+from pathlib import Path
+from world.checkpoint import CheckpointStore
+store = CheckpointStore(Path(sys.argv[1]))
+tick = 0
+while True:
+    tick += 1
+    store.save(tick, {"tick": tick, "padding": "x" * 200_000})
+    if tick == 3:
+        print("writing", flush=True)
+"""
+
+
+def test_a_process_killed_while_writing_leaves_a_valid_checkpoint(tmp_path: Path) -> None:
+    directory = tmp_path / "checkpoints"
+    for delay_s in (0.0, 0.013, 0.029, 0.051):
+        writer = subprocess.Popen(
+            [sys.executable, "-c", _WRITER_LOOP, str(directory)],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert writer.stdout is not None and writer.stdout.readline() == "writing\n"
+        time.sleep(delay_s)
+        writer.send_signal(signal.SIGKILL)
+        writer.wait(timeout=30)
+        writer.stdout.close()
+        loaded = CheckpointStore(directory).load_latest()
+        assert loaded is not None and loaded.state["tick"] == loaded.tick >= 3
+        assert not list(directory.glob("*.refused"))
+        assert not list(directory.glob(".world-*"))  # a killed write's temporary file
