@@ -55,7 +55,7 @@ from robot_firmware.control.controller import (
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from robot_firmware.control.trajectories import Trajectory
 from robot_firmware.drivers import Drivers
-from robot_firmware.leadership import Leadership, LeadershipParams, slot_of
+from robot_firmware.leadership import Leadership, LeadershipParams, handover_offset, slot_of
 from robot_firmware.net.frames import (
     NO_RUN_ID,
     FrameDecoder,
@@ -183,7 +183,11 @@ class Firmware:
         self.peer_rate = np.zeros((n, 3))
         self.peer_stamp_s = np.full(n, -np.inf)
         self.peer_is_leader = np.zeros(n, dtype=bool)
+        self.peer_down = np.zeros(n, dtype=bool)
+        """Peers whose token went: stopped bodies at their last pose until heard again."""
         self.leadership: Leadership | None = None
+        self._handover: tuple[float, tuple[float, float]] | None = None
+        """(time, offset from the trajectory) of taking over the lead while driving."""
         """Created at the first frame or tick, when the robot first knows the time."""
         self.sonar_gap_m = np.full(mission.sonar_count, np.inf)
         self.fix_pose = np.zeros(3)
@@ -236,6 +240,7 @@ class Firmware:
         self.peer_pose[i] = (frame.x_m, frame.y_m, frame.theta_rad)
         self.peer_rate[i] = (frame.xdot_mps, frame.ydot_mps, frame.thetadot_radps)
         self.peer_stamp_s[i] = frame.timestamp_ns / NS_PER_S
+        self.peer_down[i] = False
         self.peer_is_leader[i] = claims_lead
         return True
 
@@ -260,11 +265,17 @@ class Firmware:
         return self.leadership.is_leader
 
     def set_peer_alive(self, peer: str, alive: bool, now_ns: int) -> None:
-        """The runtime saw robot `peer`'s liveliness token appear or go; unknown names are
-        ignored."""
+        """The runtime saw robot `peer`'s liveliness token appear or go (then the peer is held
+        as a stopped body at its last broadcast pose); unknown names are ignored."""
         if peer in self.mission.names:
             index = self.mission.names.index(peer)
             self.leadership_at(now_ns).set_alive(index, alive, now_ns / NS_PER_S)
+            if not alive and index != self.mission.index and np.isfinite(self.peer_stamp_s[index]):
+                # Its body has stopped where it last was (DESIGN.md §7: a power cut) and stays
+                # an obstacle: held at its last broadcast pose, not extrapolated along its last
+                # velocity, until it is heard again.
+                self.peer_down[index] = True
+                self.peer_rate[index] = 0.0
 
     def _take_role(self, now_ns: int) -> None:
         """This tick's role and slot, and which peer leads (levels 3-4 read them)."""
@@ -282,6 +293,31 @@ class Firmware:
         self.peer_is_leader[:] = False
         if acting is not None and acting != m.index:
             self.peer_is_leader[acting] = True
+        self.peer_stamp_s[self.peer_down] = t_s  # a stopped body does not go stale
+
+    def _handed_over(
+        self, was_leader: bool, t_s: float, pose: FloatArray, rate: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """The trajectory as this robot's reference: offset after it took over the lead while
+        it was driving in the formation (`handover_offset`)."""
+        est = self.state.estimator
+        if not bool(self.role.is_leader):
+            self._handover = None
+            return pose, rate
+        if not was_leader and bool(est.localised):
+            start = (float(est.pose[0] - pose[0]), float(est.pose[1] - pose[1]))
+            self._handover = (t_s, start)
+        if self._handover is None:
+            return pose, rate
+        started_s, offset0_m = self._handover
+        speed_mps = self.mission.leadership.handover_speed_mps
+        offset_m, offset_rate_mps = handover_offset(offset0_m, t_s - started_s, speed_mps)
+        if offset_m == (0.0, 0.0):
+            self._handover = None
+            return pose, rate
+        pose[:2] += offset_m
+        rate[:2] += offset_rate_mps
+        return pose, rate
 
     def safe_stop(self) -> None:
         """No sense messages: duty 0 and outputs disabled through the motor driver, and no more
@@ -341,8 +377,15 @@ class Firmware:
             d.sonar.trigger_all()
             self._next_sonar_ns = now_ns + self._sonar_period_ns
         # Levels 2-4: the shared control step, in this tick's role.
+        was_leader = bool(self.role.is_leader)
         self._take_role(now_ns)
         reference_pose, reference_rate = self.mission.trajectory.evaluate(t_s)
+        reference_pose, reference_rate = self._handed_over(
+            was_leader,
+            t_s,
+            np.array(reference_pose, dtype=float),
+            np.array(reference_rate, dtype=float),
+        )
         inputs = ControlInputs(
             t_s=t_s,
             encoder_counts=counts,

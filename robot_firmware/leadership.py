@@ -64,6 +64,10 @@ No split brain: a robot partitioned from the rest that elected itself keeps its 
 it hears a claim that beats it (a higher term, or the same term from a lower index); then it
 follows, so two leaders never both act once they hear each other.
 
+**Handover.**  A new leader starts from where it is: its reference is the trajectory plus an
+offset that shrinks at `handover_speed_mps` (`handover_offset`), so it does not rush at the
+trajectory point, where the dead leader's body stopped.
+
 **Slots.**  The scenario's slots are relative to the leader (eq. 17).  With robot L leading, a
 follower that has a scenario slot keeps it, relative to L; the designated leader, which has no
 slot of its own, takes L's slot (the slot L vacated).  So with robot2 leading, robot3 keeps its
@@ -88,6 +92,8 @@ class LeadershipParams(BaseModel):
 
     leader_timeout_s: PositiveFloat = 0.5
     """A leader unheard for this long is lost: 10 broadcast periods at 20 Hz."""
+    handover_speed_mps: PositiveFloat = 0.15
+    """How fast a new leader's reference closes in on the trajectory (`handover_offset`)."""
     listen_s: PositiveFloat = 0.2
     """How long the designated leader listens after booting before it claims term 0."""
     boot_patience_s: PositiveFloat = 3.0
@@ -284,6 +290,23 @@ class Leadership:
         self.waiting_since_s = t_s
         if changed:
             self.changes.append(LeaderChange(t_s=t_s, term=term, leader=leader, reason=reason))
+
+
+def handover_offset(
+    offset0_m: tuple[float, float], elapsed_s: float, speed_mps: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A new leader's reference offset from the trajectory (bumpless transfer), and its rate.
+
+    At the handover the offset is the new leader's position minus the trajectory point, so its
+    reference starts where it is; the offset then shrinks along its first direction at
+    `speed_mps` until it is gone.  Without it the new leader would jump at the trajectory point,
+    which is where the dead leader's body stopped."""
+    length_m = math.hypot(*offset0_m)
+    left_m = length_m - speed_mps * max(elapsed_s, 0.0)
+    if length_m == 0.0 or left_m <= 0.0:
+        return (0.0, 0.0), (0.0, 0.0)
+    ux, uy = offset0_m[0] / length_m, offset0_m[1] / length_m
+    return (ux * left_m, uy * left_m), (-ux * speed_mps, -uy * speed_mps)
 
 
 def slot_of(

@@ -12,6 +12,7 @@ from robot_firmware.leadership import (
     LeadershipParams,
     Phase,
     claim_beats,
+    handover_offset,
     slot_of,
 )
 
@@ -388,3 +389,15 @@ def test_returning_designated_leader_takes_the_vacated_slot() -> None:
     assert slot_of(0, 1, 0, SLOTS) == SLOTS[1]
     assert slot_of(0, 2, 0, SLOTS) == SLOTS[2]
     assert slot_of(0, None, 0, SLOTS) == (0.0, 0.0)
+
+
+# -- handover ------------------------------------------------------------------------------
+
+
+def test_handover_offset_starts_at_the_new_leader_and_shrinks_at_its_speed() -> None:
+    offset, rate = handover_offset((0.3, -0.4), 0.0, 0.1)
+    assert offset == pytest.approx((0.3, -0.4)) and rate == pytest.approx((-0.06, 0.08))
+    offset, rate = handover_offset((0.3, -0.4), 2.0, 0.1)
+    assert math.hypot(*offset) == pytest.approx(0.3)
+    assert handover_offset((0.3, -0.4), 5.0, 0.1) == ((0.0, 0.0), (0.0, 0.0))
+    assert handover_offset((0.0, 0.0), 1.0, 0.1) == ((0.0, 0.0), (0.0, 0.0))
