@@ -15,6 +15,15 @@ The fitness of eq. 16 uses the time average of Σ_i (|x_ei| + |y_ei| + |θ_ei|) 
 window t >= `fitness_window_start_s` (default 0: the whole run, transient included, DESIGN.md §6),
 so its value does not depend on the run's length; the RMS figures keep the steady-state window.
 
+Who leads can change during a run (leader failover, robot_firmware/leadership.py): the world
+tells the accumulator who acts as leader (`set_leader`), and each sample is taken against that
+robot.  Its tracking error counts into the leader figures (`*_lead` accumulators, per robot),
+every other robot's error against its slot relative to it into the formation figures; slots are
+re-referenced as the firmware does (`slot_of`: a robot keeps its scenario slot, the designated
+leader takes the slot the acting leader vacated).  Each change is an event in `events`
+(t_s, kind "leader_change", from, to, term).  With no change the figures are those of a fixed
+leader.
+
 `MetricsAccumulator` consumes one sample at a time for any batch shape, so a live process and the
 batch simulator produce the same numbers from the same code.
 """
@@ -64,19 +73,28 @@ class FormationLayout:
 
 
 def reference_points(
-    true_pose: FloatArray, trajectory_pose: FloatArray, layout: FormationLayout
+    true_pose: FloatArray,
+    trajectory_pose: FloatArray,
+    layout: FormationLayout,
+    leader_index: int | None = None,
 ) -> FloatArray:
     """Each robot's reference pose (..., N, 3): the trajectory for the leader, slots for followers.
 
     Followers' slots come from the leader's true pose; their reference heading is the leader's.
+    leader_index: the acting leader (default the scenario's); with another robot leading, the
+    scenario's leader takes the slot it vacated.
     """
-    leader = true_pose[..., layout.leader_index, :]
-    slots = follower_slot_in_world(
-        leader[..., None, :], layout.slot_distance_m, layout.slot_angle_rad
-    )
+    lead = layout.leader_index if leader_index is None else leader_index
+    distance_m = layout.slot_distance_m.copy()
+    angle_rad = layout.slot_angle_rad.copy()
+    if lead != layout.leader_index:
+        distance_m[layout.leader_index] = layout.slot_distance_m[lead]
+        angle_rad[layout.leader_index] = layout.slot_angle_rad[lead]
+    leader = true_pose[..., lead, :]
+    slots = follower_slot_in_world(leader[..., None, :], distance_m, angle_rad)
     heading = np.broadcast_to(leader[..., None, 2:3], slots.shape[:-1] + (1,))
     ref = np.concatenate((slots, heading), axis=-1)
-    ref[..., layout.leader_index, :] = trajectory_pose
+    ref[..., lead, :] = trajectory_pose
     return ref
 
 
@@ -134,8 +152,45 @@ class MetricsAccumulator:
         self.min_robot_gap_m = np.full(batch_shape, np.inf)
         self.min_obstacle_gap_m = np.full(batch_shape, np.inf)
         self.collisions = np.zeros(batch_shape, dtype=np.int64)
+        self.sum_sq_position_nominal_lead = np.zeros(shape)
+        self.sum_sq_heading_nominal_lead = np.zeros(shape)
+        self.count_nominal_lead = np.zeros(shape)
+        self.sum_sq_position_all_lead = np.zeros(shape)
+        self.sum_sq_heading_all_lead = np.zeros(shape)
+        self.count_all_lead = np.zeros(shape)
         self._previous_contacts: BoolArray | None = None
         self.last_t_s = 0.0
+        self.leader_index = layout.leader_index
+        self.leader_term = 0
+        self.events: list[dict[str, object]] = []
+
+    LEAD_FIELDS = (
+        "sum_sq_position_nominal_lead",
+        "sum_sq_heading_nominal_lead",
+        "count_nominal_lead",
+        "sum_sq_position_all_lead",
+        "sum_sq_heading_all_lead",
+        "count_all_lead",
+    )
+    """Per robot, the samples taken while it acted as leader (the others: while following)."""
+
+    def set_leader(self, leader_index: int, term: int, t_s: float) -> None:
+        """From `t_s` on, robot `leader_index` acts as leader in `term`; a change is an event."""
+        if not 0 <= leader_index < len(self.layout.names):
+            raise ValueError(f"no robot {leader_index} among {self.layout.names}")
+        if leader_index != self.leader_index:
+            names = self.layout.names
+            self.events.append(
+                {
+                    "t_s": round(float(t_s), 6),
+                    "kind": "leader_change",
+                    "from": names[self.leader_index],
+                    "to": names[leader_index],
+                    "term": int(term),
+                }
+            )
+        self.leader_index = leader_index
+        self.leader_term = int(term)
 
     ARRAY_FIELDS = (
         "last_near_obstacle_s",
@@ -152,6 +207,7 @@ class MetricsAccumulator:
         "min_robot_gap_m",
         "min_obstacle_gap_m",
         "collisions",
+        *LEAD_FIELDS,
     )
     """The running sums and extremes: with the previous contacts and the last sample's time,
     everything a restarted world needs to carry on (world/checkpoint.py)."""
@@ -163,6 +219,9 @@ class MetricsAccumulator:
         }
         state["previous_contacts"] = self._previous_contacts
         state["last_t_s"] = self.last_t_s
+        state["leader_index"] = self.leader_index
+        state["leader_term"] = self.leader_term
+        state["events"] = [dict(event) for event in self.events]
         return state
 
     def import_state(self, state: Mapping[str, object]) -> None:
@@ -176,6 +235,10 @@ class MetricsAccumulator:
         contacts = state["previous_contacts"]
         self._previous_contacts = None if contacts is None else np.asarray(contacts, dtype=bool)
         self.last_t_s = float(state["last_t_s"])  # type: ignore[arg-type]
+        self.leader_index = int(state.get("leader_index", self.layout.leader_index))  # type: ignore[call-overload]
+        self.leader_term = int(state.get("leader_term", 0))  # type: ignore[call-overload]
+        events = state.get("events", [])
+        self.events = [dict(event) for event in events] if isinstance(events, list) else []
 
     def update(
         self,
@@ -190,7 +253,7 @@ class MetricsAccumulator:
         they are derived from the gaps.
         """
         cfg = self.config
-        reference = reference_points(true_pose, trajectory_pose, self.layout)
+        reference = reference_points(true_pose, trajectory_pose, self.layout, self.leader_index)
         errors = sample_errors(true_pose, reference)
         near = obstacle_gaps(reference[..., :2], self.obstacle_centres_m, self.obstacle_radii_m)
         limit = cfg.apf_influence_m + 2.0 * cfg.body_radius_m
@@ -220,13 +283,21 @@ class MetricsAccumulator:
             nominal = (t_s - self.last_near_obstacle_s) >= cfg.nominal_hold_s
             pos_sq = errors[..., 0] ** 2 + errors[..., 1] ** 2
             head_sq = errors[..., 2] ** 2
-            self.sum_sq_position_all += pos_sq
-            self.sum_sq_heading_all += head_sq
-            self.count_all += 1.0
-            self.sum_sq_position_nominal += np.where(nominal, pos_sq, 0.0)
-            self.sum_sq_heading_nominal += np.where(nominal, head_sq, 0.0)
-            self.count_nominal += nominal
-            pos = np.sqrt(pos_sq)
+            leads = np.arange(len(self.layout.names)) == self.leader_index
+            follows = ~leads
+            self.sum_sq_position_all += np.where(follows, pos_sq, 0.0)
+            self.sum_sq_heading_all += np.where(follows, head_sq, 0.0)
+            self.count_all += follows
+            self.sum_sq_position_nominal += np.where(nominal & follows, pos_sq, 0.0)
+            self.sum_sq_heading_nominal += np.where(nominal & follows, head_sq, 0.0)
+            self.count_nominal += nominal & follows
+            self.sum_sq_position_all_lead += np.where(leads, pos_sq, 0.0)
+            self.sum_sq_heading_all_lead += np.where(leads, head_sq, 0.0)
+            self.count_all_lead += leads
+            self.sum_sq_position_nominal_lead += np.where(nominal & leads, pos_sq, 0.0)
+            self.sum_sq_heading_nominal_lead += np.where(nominal & leads, head_sq, 0.0)
+            self.count_nominal_lead += nominal & leads
+            pos = np.where(follows, np.sqrt(pos_sq), 0.0)
             self.max_position_all = np.maximum(self.max_position_all, pos)
             self.max_position_nominal = np.maximum(
                 self.max_position_nominal, np.where(nominal, pos, 0.0)
@@ -261,9 +332,20 @@ class MetricsAccumulator:
 
         pos_nom = per_robot(self._rms(self.sum_sq_position_nominal, self.count_nominal))
         pos_all = per_robot(self._rms(self.sum_sq_position_all, self.count_all))
-        head_nom = per_robot(self._rms(self.sum_sq_heading_nominal, self.count_nominal))
-        head_all = per_robot(self._rms(self.sum_sq_heading_all, self.count_all))
-        share = per_robot(self.count_nominal / np.maximum(self.count_all, 1.0))
+
+        def lead_rms(sum_sq: FloatArray, count: FloatArray) -> FloatArray:
+            return self._rms(per_robot(sum_sq).sum(axis=-1), per_robot(count).sum(axis=-1))
+
+        lead_pos_nom = lead_rms(self.sum_sq_position_nominal_lead, self.count_nominal_lead)
+        lead_pos_all = lead_rms(self.sum_sq_position_all_lead, self.count_all_lead)
+        lead_head_nom = lead_rms(self.sum_sq_heading_nominal_lead, self.count_nominal_lead)
+        lead_head_all = lead_rms(self.sum_sq_heading_all_lead, self.count_all_lead)
+        nominal_count = self.count_nominal + self.count_nominal_lead
+        share = per_robot(nominal_count / np.maximum(self.count_all + self.count_all_lead, 1.0))
+        followed = per_robot(self.count_all) > 0
+        followers = tuple(
+            i for i in range(n) if i in self.layout.follower_indices or followed[..., i].any()
+        )
         max_nom = per_robot(self.max_position_nominal)
         max_all = per_robot(self.max_position_all)
         robot_gap = per_run(self.min_robot_gap_m)
@@ -275,10 +357,10 @@ class MetricsAccumulator:
             out.append(
                 {
                     "leader": names[lead],
-                    "leader_tracking_rms_m": _figure(pos_nom[b, lead]),
-                    "leader_tracking_rms_all_m": _figure(pos_all[b, lead]),
-                    "leader_heading_rms_rad": _figure(head_nom[b, lead]),
-                    "leader_heading_rms_all_rad": _figure(head_all[b, lead]),
+                    "leader_tracking_rms_m": _figure(lead_pos_nom[b]),
+                    "leader_tracking_rms_all_m": _figure(lead_pos_all[b]),
+                    "leader_heading_rms_rad": _figure(lead_head_nom[b]),
+                    "leader_heading_rms_all_rad": _figure(lead_head_all[b]),
                     "formation_rms_m": {names[i]: _figure(pos_nom[b, i]) for i in followers},
                     "formation_rms_all_m": {names[i]: _figure(pos_all[b, i]) for i in followers},
                     "formation_max_m": _figure(max((max_nom[b, i] for i in followers), default=0)),
@@ -290,6 +372,7 @@ class MetricsAccumulator:
                     "min_obstacle_clearance_m": _figure(obstacle_gap[b]),
                     "collisions": int(collisions[b]),
                     "mean_abs_error_sum": _figure(abs_error[b]),
+                    "events": [dict(event) for event in self.events],
                 }
             )
         return out

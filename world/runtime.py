@@ -24,6 +24,15 @@ t = 0.
 Every start of the world has a new random epoch on its clock and sense messages, so the
 robots know when the clock jumped (robot_firmware/tick_scheduler.py).
 
+Who leads (for the metrics, DESIGN.md §8) the world learns from the robots' telemetry: each
+reports its acting role and leader term (robot_firmware/leadership.py).  The world reads no
+robot internals and the radio frames are opaque to it; liveliness would say who is up, not who
+leads (a restarted old leader is up and follows).  The acting leader is the live robot that
+reports leading with the highest term (ties: lower index); until another reports, the last one
+stays.  A change is recorded at the reporting robot's own simulation time (`set_leader`), so in
+lockstep the event's time does not depend on delivery; the samples between that time and the
+telemetry's arrival (at most a telemetry period late) are still taken against the old leader.
+
 At the end (duration reached, SIGTERM or Ctrl-C) and every few seconds meanwhile the world
 writes `summary.json` with the schema of `swarm sim`, plus radio counters and the robots'
 control-loop timing, atomically.  Admin queryables: `admin/world/status`, `admin/world/net`
@@ -219,6 +228,8 @@ class WorldProcess:
         self._held_frames: list[tuple[int, bytes]] = []
         self.timing: dict[str, LoopTimingReport] = {}
         self.sense_drops: dict[str, dict[str, int]] = {}
+        self.reported_roles: dict[str, tuple[bool, int, float]] = {}
+        """Each robot's latest telemetry: whether it leads, its term, its time (s)."""
         """Each robot's refused sense messages per reason, from its latest telemetry."""
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._clock_started_mono_s: float | None = None
@@ -333,6 +344,8 @@ class WorldProcess:
             self.malformed_telemetry += 1
         else:
             self.sense_drops[telemetry.robot] = telemetry.dropped_sense
+            leads = telemetry.role == "leader"
+            self.reported_roles[telemetry.robot] = (leads, telemetry.term or 0, telemetry.t_s)
             if telemetry.timing is not None:
                 self.timing[telemetry.robot] = telemetry.timing
 
@@ -379,11 +392,28 @@ class WorldProcess:
                 self.spoofed_frames += 1
                 continue
             frames.append((j, payload))
+        self._follow_leader()
         # Deterministic order within one step: by sender index, then arrival.
         self._held_frames.extend(frames)
         if not self.config.lockstep:
             self._transmit_held()
         self._serve_queries()
+
+    def _follow_leader(self) -> None:
+        """Take the sample's leader from the telemetry (module docstring)."""
+        live = self.live
+        claims = [
+            (term, -self.index[name], name, t_s)
+            for name, (leads, term, t_s) in list(self.reported_roles.items())
+            if leads and name in live and name in self.index
+        ]
+        if not claims:
+            return
+        term, _, name, t_s = max(claims)
+        metrics = self.engine.metrics
+        if self.index[name] != metrics.leader_index or term != metrics.leader_term:
+            metrics.set_leader(self.index[name], term, t_s)
+            log.info("robot %s leads (term %d)", name, term)
 
     def _transmit_held(self) -> None:
         for j, payload in sorted(self._held_frames, key=lambda item: item[0]):
@@ -597,7 +627,10 @@ class WorldProcess:
         errors = sample_errors(
             engine.bodies.pose,
             reference_points(
-                engine.bodies.pose, reference, FormationLayout.from_scenario(self.scenario)
+                engine.bodies.pose,
+                reference,
+                FormationLayout.from_scenario(self.scenario),
+                engine.metrics.leader_index,
             ),
         )
         return {
