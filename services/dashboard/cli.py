@@ -18,6 +18,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from robot_firmware.net.keys import check_name
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
@@ -60,12 +61,12 @@ def run_dashboard(args: argparse.Namespace) -> int:
 
     scenario_path = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
     credentials_file = args.credentials or os.environ.get(CREDENTIALS_FILE_ENV)
-    if not credentials_file:
-        return _usage_error("dashboard", f"no credentials: {HOW_TO_GET_CREDENTIALS}")
     try:
         scenario = load_scenario(scenario_path)
+        if not credentials_file:
+            return _usage_error("dashboard", f"no credentials: {HOW_TO_GET_CREDENTIALS}")
         credentials = read_credentials(Path(credentials_file))
-        swarm = args.swarm or os.environ.get("SWARM_NAME", "lab")
+        swarm = check_name("swarm", args.swarm or os.environ.get("SWARM_NAME", "lab"))
         check_identity(credentials, DASHBOARD, swarm)
         config = DashboardConfig(
             credentials=credentials,

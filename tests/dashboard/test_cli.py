@@ -11,7 +11,17 @@ from pathlib import Path
 import pytest
 
 from services.dashboard.cli import add_dashboard_parsers, run_dashboard, run_replay
+from swarm_config.credentials import DASHBOARD, generate_credential_set, write_credential_set
 from tests.dashboard.conftest import PAPER, Child, free_port, read_recording, start
+
+
+@pytest.fixture
+def dashboard_credentials(tmp_path: Path) -> str:
+    """A dashboard credentials file of swarm lab, as `swarm up` writes it."""
+    paths = write_credential_set(
+        tmp_path / "credentials", generate_credential_set("lab", ("robot1", "robot2", "robot3"))
+    )
+    return str(paths[DASHBOARD])
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -39,14 +49,16 @@ def test_missing_scenario_is_a_usage_error(
     assert err.startswith("swarm dashboard: ") and "nope.yaml" in err and len(err.splitlines()) == 1
 
 
-def test_port_in_use_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+def test_port_in_use_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], dashboard_credentials: str
+) -> None:
     with socket.socket() as taken:
         taken.bind(("0.0.0.0", 0))
         taken.listen()
         port = taken.getsockname()[1]
         args = _parser().parse_args(
             ["dashboard", "--scenario", str(PAPER), "--grpc-port", str(port)]
-            + ["--web-port", str(free_port())]
+            + ["--web-port", str(free_port()), "--credentials", dashboard_credentials]
         )
         assert args.handler(args) == 2
     assert f"port {port} is in use" in capsys.readouterr().err
@@ -57,9 +69,14 @@ def test_port_in_use_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> Non
     [("--web-port", "70000", "web_port"), ("--swarm", "Bad Name", "swarm name")],
 )
 def test_bad_settings_are_one_line_usage_errors(
-    option: str, value: str, problem: str, capsys: pytest.CaptureFixture[str]
+    option: str,
+    value: str,
+    problem: str,
+    capsys: pytest.CaptureFixture[str],
+    dashboard_credentials: str,
 ) -> None:
-    args = _parser().parse_args(["dashboard", "--scenario", str(PAPER), option, value])
+    argv = ["dashboard", "--scenario", str(PAPER), "--credentials", dashboard_credentials]
+    args = _parser().parse_args([*argv, option, value])
     assert args.handler(args) == 2
     err = capsys.readouterr().err
     assert problem in err and len(err.strip().splitlines()) == 1, err
@@ -74,9 +91,10 @@ def test_replay_of_a_missing_file_is_a_usage_error(
 
 
 def test_dashboard_waiting_for_an_absent_router_stops_on_sigterm(
-    tmp_path: Path, children: list[Child]
+    tmp_path: Path, children: list[Child], dashboard_credentials: str
 ) -> None:
     argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
+    argv += ["--credentials", dashboard_credentials]
     argv += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--out", str(tmp_path)]
     argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
     dashboard = start("dashboard", argv, tmp_path / "logs")
