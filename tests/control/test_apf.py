@@ -74,3 +74,19 @@ def test_force_is_floored_near_contact_and_clipped() -> None:
     np.testing.assert_allclose(inside, at_floor)
     clipped = clip_norm(np.array([[3.0, 4.0], [0.3, 0.4]]), 1.0)
     np.testing.assert_allclose(clipped, [[0.6, 0.8], [0.3, 0.4]])
+
+
+def test_eqs23_and_25_at_gaps_worked_by_hand() -> None:
+    # ς = 1, ρ₀ = 0.4 m, floor 0.05 m. One source 0.2 m away along +x, one 0.1 m away along +y:
+    # eq. 23: U = ½(1/0.2 − 1/0.4)² + ½(1/0.1 − 1/0.4)² = ½·2.5² + ½·7.5² = 3.125 + 28.125;
+    # eq. 25: |F| = (1/ρ − 1/ρ₀)/ρ²: 2.5/0.04 = 62.5 along +x and 7.5/0.01 = 750 along +y.
+    directions = np.array([[1.0, 0.0], [0.0, 1.0]])
+    gaps = np.array([0.2, 0.1])
+    both = np.array([True, True])
+    potential = repulsive_potential(gaps, both, 1.0, 0.4)
+    np.testing.assert_allclose(potential, 31.25, rtol=1e-12)
+    force = repulsive_force(directions, gaps, both, 1.0, 0.4, 0.05)
+    np.testing.assert_allclose(force, [62.5, 750.0], rtol=1e-12)
+    # Closer than the floor (0.02 m < 0.05 m), ρ is taken as 0.05: (20 − 2.5)/0.0025 = 7000.
+    floored = repulsive_force(directions[:1], np.array([0.02]), both[:1], 1.0, 0.4, 0.05)
+    np.testing.assert_allclose(floored, [7000.0, 0.0], rtol=1e-12)

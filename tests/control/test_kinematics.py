@@ -58,3 +58,26 @@ def test_elementwise_forms_equal_matrix_forms(shape: tuple[int, ...]) -> None:
 def test_pure_spin_drives_all_wheels_equally() -> None:
     wheels = wheel_speeds_from_pose_rate(np.array([0.0, 0.0, 2.0]), np.array(0.7), WHEEL_BASE_M)
     np.testing.assert_allclose(wheels, np.full(4, 2.0 * WHEEL_BASE_M))
+
+
+def test_eq9_at_a_heading_worked_by_hand() -> None:
+    # θ = π/4, so δ + θ = π/2: sin = 1, cos = 0 and eq. 9's P(θ) is
+    # [[-1, 0, L], [0, -1, L], [1, 0, L], [0, 1, L]] with L = 0.25 m.
+    # For (ẋ, ẏ, θ̇) = (0.2, -0.1, 0.4): L·θ̇ = 0.1, rims (-0.2 + 0.1, 0.1 + 0.1, 0.2 + 0.1,
+    # -0.1 + 0.1) = (-0.1, 0.2, 0.3, 0.0) m/s.
+    theta = np.array(np.pi / 4)
+    np.testing.assert_allclose(
+        kinematics_matrix(theta, WHEEL_BASE_M),
+        [[-1.0, 0.0, 0.25], [0.0, -1.0, 0.25], [1.0, 0.0, 0.25], [0.0, 1.0, 0.25]],
+        atol=1e-15,
+    )
+    rate = np.array([0.2, -0.1, 0.4])
+    wheels = wheel_speeds_from_pose_rate(rate, theta, WHEEL_BASE_M)
+    np.testing.assert_allclose(wheels, [-0.1, 0.2, 0.3, 0.0], atol=1e-15)
+    # Eq. 11 with P# of DESIGN.md §6 (s = 1, c = 0): ẋ = (v3 − v1)/2 = 0.2,
+    # ẏ = (v4 − v2)/2 = -0.1, θ̇ = Σv/(4L) = 0.4/1.0 = 0.4.
+    np.testing.assert_allclose(
+        pose_rate_from_wheel_speeds(np.array([-0.1, 0.2, 0.3, 0.0]), theta, WHEEL_BASE_M),
+        rate,
+        atol=1e-15,
+    )

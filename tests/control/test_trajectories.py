@@ -9,11 +9,37 @@ from robot_firmware.control.trajectories import (
 
 
 def test_circle_is_the_papers_reference() -> None:
-    t = np.linspace(0, 30, 301)
-    pose, _ = CircleTrajectory().evaluate(t)
-    np.testing.assert_allclose(pose[:, 0], 1.5 * np.cos(0.35 * t))
-    np.testing.assert_allclose(pose[:, 1], 1.5 * np.sin(0.35 * t))
-    np.testing.assert_allclose(pose[:, 2], np.pi / 2)
+    # x_d = 1.5 cos(0.35 t), y_d = 1.5 sin(0.35 t), θ_d = π/2 (§IV-B), worked out at the
+    # quarter turns t = k·(π/2)/0.35 ≈ k·4.488 s and at one eighth of a turn, t = (π/4)/0.35:
+    # the point runs anticlockwise at 1.5 m · 0.35 rad/s = 0.525 m/s, tangent to the circle.
+    quarter_s = (np.pi / 2) / 0.35
+    t = np.array([0.0, quarter_s, 2 * quarter_s, 3 * quarter_s, 4 * quarter_s, quarter_s / 2])
+    pose, rate = CircleTrajectory().evaluate(t)
+    half_sqrt2 = np.sqrt(2.0) / 2.0
+    np.testing.assert_allclose(
+        pose,
+        [
+            [1.5, 0.0, np.pi / 2],
+            [0.0, 1.5, np.pi / 2],
+            [-1.5, 0.0, np.pi / 2],
+            [0.0, -1.5, np.pi / 2],
+            [1.5, 0.0, np.pi / 2],
+            [1.5 * half_sqrt2, 1.5 * half_sqrt2, np.pi / 2],
+        ],
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(
+        rate,
+        [
+            [0.0, 0.525, 0.0],
+            [-0.525, 0.0, 0.0],
+            [0.0, -0.525, 0.0],
+            [0.525, 0.0, 0.0],
+            [0.0, 0.525, 0.0],
+            [-0.525 * half_sqrt2, 0.525 * half_sqrt2, 0.0],
+        ],
+        atol=1e-12,
+    )
 
 
 @pytest.mark.parametrize(
