@@ -16,21 +16,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pydantic import ValidationError
-
-from robot_firmware.net.keys import check_name
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
-    DASHBOARD,
-    HOW_TO_GET_CREDENTIALS,
-    check_identity,
-    read_credentials,
 )
-from swarm_config.scenario import ScenarioError, load_scenario
+from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
+from swarm_config.settings import SettingsError
 
 EXIT_USAGE = 2
-DEFAULT_SCENARIO = "configs/scenarios/paper.yaml"
+DEFAULT_SCENARIO = str(DEFAULT_SCENARIO_PATH)
 DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
 
@@ -59,37 +53,27 @@ def run_dashboard(args: argparse.Namespace) -> int:
     # Rerun loads only when a dashboard runs, not for every `swarm` command.
     from services.dashboard.live import DashboardConfig, DashboardService
 
-    scenario_path = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
-    credentials_file = args.credentials or os.environ.get(CREDENTIALS_FILE_ENV)
+    given = {
+        "scenario": args.scenario,
+        "swarm": args.swarm,
+        "connect": split_endpoints(args.connect) if args.connect else None,
+        "credentials": args.credentials,
+        "host": args.host,
+        "web_port": args.web_port,
+        "grpc_port": args.grpc_port,
+        "out_dir": args.out,
+        "server_memory_limit": args.memory_limit,
+    }
     try:
-        scenario = load_scenario(scenario_path)
-        if not credentials_file:
-            return _usage_error("dashboard", f"no credentials: {HOW_TO_GET_CREDENTIALS}")
-        credentials = read_credentials(Path(credentials_file))
-        swarm = check_name("swarm", args.swarm or os.environ.get("SWARM_NAME", "lab"))
-        check_identity(credentials, DASHBOARD, swarm)
-        config = DashboardConfig(
-            credentials=credentials,
-            scenario=scenario_path,
-            swarm=swarm,
-            connect=split_endpoints(
-                args.connect or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT)
-            ),
-            host=args.host,
-            web_port=args.web_port,
-            grpc_port=args.grpc_port,
-            out_dir=Path(args.out) if args.out else None,
-            server_memory_limit=args.memory_limit,
+        # The scenario first: a missing one is the mistake to report, whatever else is wrong.
+        scenario_path = args.scenario or os.environ.get("SWARM_SCENARIO") or DEFAULT_SCENARIO
+        scenario = load_scenario(Path(scenario_path))
+        config = DashboardConfig.from_sources(
+            given, config_file=Path(args.config) if args.config else None
         )
         service = DashboardService(config, scenario)
-    except ScenarioError as exc:
+    except (ScenarioError, SettingsError) as exc:
         return _usage_error("dashboard", str(exc))
-    except ValidationError as exc:
-        problems = "; ".join(
-            f"{'.'.join(str(p) for p in item['loc'])}: {item['msg']}"
-            for item in exc.errors(include_url=False)
-        )
-        return _usage_error("dashboard", f"invalid settings: {problems}")
     except ValueError as exc:
         return _usage_error("dashboard", f"invalid settings: {exc}")
 
@@ -135,22 +119,28 @@ def run_replay(args: argparse.Namespace) -> int:
         return serve_recording(command, stop)
 
 
-def _viewer_options(parser: argparse.ArgumentParser) -> None:
+def _viewer_options(parser: argparse.ArgumentParser, with_defaults: bool = True) -> None:
+    """The viewer's ports and host; without defaults (the dashboard) an unset flag leaves the
+    value to the settings file or the settings' own default, which are the same numbers."""
+
+    def default(value: object) -> object:
+        return value if with_defaults else None
+
     parser.add_argument(
         "--web-port",
         type=int,
-        default=DEFAULT_WEB_PORT,
+        default=default(DEFAULT_WEB_PORT),
         help=f"HTTP port of the web viewer (default: {DEFAULT_WEB_PORT})",
     )
     parser.add_argument(
         "--grpc-port",
         type=int,
-        default=DEFAULT_GRPC_PORT,
+        default=default(DEFAULT_GRPC_PORT),
         help=f"port of the gRPC server the viewer reads from (default: {DEFAULT_GRPC_PORT})",
     )
     parser.add_argument(
         "--host",
-        default="127.0.0.1",
+        default=default("127.0.0.1"),
         help="this machine's name or address as the browser reaches it, used in the printed "
         "URL (default: 127.0.0.1); both ports must be reachable from the browser",
     )
@@ -170,6 +160,13 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
             "time line. Prints the URL to open. Stops on Ctrl-C or SIGTERM. A previous "
             "DIR/dashboard.rrd is kept as DIR/dashboard-<n>.rrd."
         ),
+    )
+    dashboard.add_argument(
+        "--config",
+        metavar="FILE",
+        help="YAML file with dashboard settings (any field of DashboardConfig: scenario, swarm, "
+        "connect, web_port, grpc_port, out_dir, flush_period_s, ...); environment and flags "
+        "override it",
     )
     dashboard.add_argument(
         "--scenario",
@@ -197,12 +194,11 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
     )
     dashboard.add_argument(
         "--memory-limit",
-        default="256MiB",
         metavar="SIZE",
         help="data the gRPC server keeps for viewers that connect late, oldest dropped first "
         "(default: 256MiB)",
     )
-    _viewer_options(dashboard)
+    _viewer_options(dashboard, with_defaults=False)
     dashboard.set_defaults(handler=run_dashboard)
 
     replay = subparsers.add_parser(

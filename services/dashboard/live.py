@@ -26,29 +26,35 @@ import socket
 import threading
 import uuid
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 from urllib.parse import quote
 
 import rerun as rr
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
     MessageDropReason,
     TelemetryMessage,
     TruthMessage,
     parse_message_or_reason,
 )
-from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client
+from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.scene import SwarmScene, Update
-from swarm_config.credentials import ProcessCredentials
-from swarm_config.scenario import Scenario
+from swarm_config.credentials import (
+    CREDENTIALS_FILE_ENV,
+    DASHBOARD,
+    CredentialsFile,
+    check_identity,
+)
+from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario
+from swarm_config.settings import LayeredSettings
 
 log = logging.getLogger("swarm.dashboard")
 
@@ -57,10 +63,13 @@ RECORDING_FILE = "dashboard.rrd"
 LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "::1", "[::1]"})
 
 
-class DashboardConfig(BaseModel):
+class DashboardConfig(LayeredSettings):
+    """Settings of the dashboard: YAML file (`swarm dashboard --config`), then environment,
+    then flags, like every process of the swarm (swarm_config/settings.py)."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    scenario: Path
+    scenario: Path = DEFAULT_SCENARIO_PATH
     swarm: str = "lab"
     connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
     zenoh_config: Path | None = None
@@ -75,8 +84,29 @@ class DashboardConfig(BaseModel):
     """How long records gather before they go out as one chunk per entity: fewer, larger
     chunks keep the file, the server's buffer and the browser's work small."""
     queue_size: int = Field(default=20_000, ge=1)
-    credentials: ProcessCredentials | None = Field(default=None, repr=False)
-    """The dashboard's router user and password (it may subscribe, nothing else)."""
+    credentials: CredentialsFile = Field(default=None, validate_default=True, repr=False)
+    """The dashboard's router user and password (it may subscribe, nothing else): read from
+    the file named by --credentials or $SWARM_CREDENTIALS_FILE."""
+
+    WHAT: ClassVar[str] = "dashboard settings"
+    ENV: ClassVar[Mapping[str, str]] = {
+        "swarm": "SWARM_NAME",
+        "scenario": "SWARM_SCENARIO",
+        "connect": "ZENOH_CONNECT",
+        "zenoh_config": "ZENOH_CONFIG",
+        "credentials": CREDENTIALS_FILE_ENV,
+    }
+    ENV_PARSERS: ClassVar[Mapping[str, Callable[[str], object]]] = {"connect": split_endpoints}
+
+    @field_validator("swarm")
+    @classmethod
+    def _key_chunk(cls, value: str) -> str:
+        return check_name("swarm", value)
+
+    @model_validator(mode="after")
+    def _credentials_are_the_dashboards(self) -> DashboardConfig:
+        check_identity(self.credentials, DASHBOARD, self.swarm)
+        return self
 
 
 def grpc_url(host: str, grpc_port: int) -> str:

@@ -17,6 +17,7 @@ from typing import Any, Literal
 import pytest
 
 from services.dashboard.live import DashboardConfig, DashboardService
+from swarm_config.credentials import DASHBOARD, generate_credential_set
 from swarm_config.scenario import load_scenario
 from tests.fuzz.generate import json_bytes, mutate_json, random_bytes, random_json
 from tests.fuzz.ledger import ACCEPTED, LEDGER
@@ -31,7 +32,9 @@ REASONS = frozenset(
 
 @pytest.fixture
 def dashboard() -> DashboardService:
-    return DashboardService(DashboardConfig(scenario=PAPER), load_scenario(PAPER))
+    scenario = load_scenario(PAPER)
+    credentials = generate_credential_set("lab", scenario.robot_names).for_identity(DASHBOARD)
+    return DashboardService(DashboardConfig(scenario=PAPER, credentials=credentials), scenario)
 
 
 def _scene_state(dashboard: DashboardService) -> object:
