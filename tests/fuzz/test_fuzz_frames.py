@@ -20,6 +20,7 @@ import dataclasses
 import random
 
 from robot_firmware.net.frames import FRAME_BYTES, DropReason, RadioFrame, encode, parse_frame
+from robot_firmware.net.wire import FixSample, SenseMessage, encode_sense
 from tests.fuzz.generate import mutate_bytes, random_bytes
 from tests.fuzz.ledger import ACCEPTED, LEDGER
 from tests.fuzz.processes import Robot, assert_same_actuation, make_robot
@@ -142,9 +143,17 @@ def test_no_radio_frame_a_robot_refuses_moves_it() -> None:
 
 
 def _tick(senders: tuple[Robot, ...], now_ns: int) -> list[bytes]:
-    """One control tick of every sender; the frames they broadcast in it."""
+    """One control tick of every sender, each given a positioning fix first (a robot
+    broadcasts only once it is localised); the frames they broadcast in it."""
     heard = []
     for robot in senders:
+        mission = robot.process.mission
+        fix = FixSample(float(mission.index), 0.0, 0.0, now_ns)
+        robot.sense(
+            encode_sense(
+                SenseMessage((0, 0, 0, 0), (None,) * mission.sonar_count, fix, t_ns=now_ns)
+            )
+        )
         sent = len(robot.radio.payloads)
         robot.control_tick(now_ns)
         heard += robot.radio.payloads[sent:]
