@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TypeVar
+from typing import IO, TypeVar
 
 import pytest
 
@@ -80,6 +82,23 @@ class LiveSwarm:
         return wait_for(predicate, timeout_s, every_s, describe)
 
 
+def _pump_lines(stream: IO[str]) -> queue.SimpleQueue[str]:
+    """Read `stream` line by line on a thread of its own until it ends ("" then): the output
+    never fills its pipe, and the reader can wait for a line with a time-out."""
+    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+
+    def pump() -> None:
+        try:
+            for line in stream:
+                lines.put(line)
+        except ValueError:  # the stream was closed under the reader
+            pass
+        lines.put("")
+
+    threading.Thread(target=pump, name="swarm-up-output", daemon=True).start()
+    return lines
+
+
 @pytest.fixture
 def live_swarm(
     tmp_path: Path, request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch
@@ -110,14 +129,21 @@ def live_swarm(
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     assert process.stdout is not None
+    output = _pump_lines(process.stdout)
     deadline = time.monotonic() + 60
     lines = []
-    while time.monotonic() < deadline:
-        line = process.stdout.readline()
+    while (left_s := deadline - time.monotonic()) > 0:
+        try:
+            line = output.get(timeout=left_s)
+        except queue.Empty:
+            break
         lines.append(line)
         if line.startswith("swarm ") or not line:
             break
-    assert any(line.startswith("swarm ") for line in lines), "".join(lines)
+    if not any(line.startswith("swarm ") for line in lines):
+        process.kill()
+        process.wait()
+        raise AssertionError(f"swarm up did not start within 60 s:\n{''.join(lines)}")
     monkeypatch.setenv("SWARM_CREDENTIALS_FILE", str(tmp_path / "credentials" / "operator.json"))
     swarm = LiveSwarm(process, port, tmp_path)
     try:
