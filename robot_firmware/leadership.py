@@ -15,12 +15,15 @@ lead; the robot runtime may add that a peer's liveliness token is gone (or back)
 s < s' (the lower index wins a tie).  A robot always follows the best claim it has heard.
 
 **Live.**  A peer is live while it was heard within `leader_timeout_s` and its liveliness token
-is not known to be gone.  The robot itself is always live.
+is not known to be gone, or while its token is there and it has not been heard at all yet (up
+and still booting).  The robot itself is always live.
 
 **Leader lost.**  The leader a robot follows is lost when its token is gone, or when no claim of
 it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: the
 term's adoption or the leader's last claim; a leader not heard since this robot booted gets
-`boot_patience_s`, since the robots of a swarm do not boot at the same instant).  While the
+`boot_patience_s`, since the robots of a swarm do not boot at the same instant), but never
+while its token is there and it has not been heard at all yet: its process is up and still
+booting, as when containers start one by one.  While the
 leader is lost, the live robot with the lowest index (the lost leader excluded) raises the term
 to one above the highest it has seen and leads; the others wait for its claim.  If that
 candidate dies too, it stops being live after the same time-out and the next one takes over.
@@ -113,6 +116,8 @@ class PeerRecord:
     term: int = 0
     claims_lead: bool = False
     token_gone: bool = False
+    token_seen: bool = False
+    """The runtime has seen the peer's liveliness token (the process is up)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,6 +202,7 @@ class Leadership:
         if peer == self.index or not 0 <= peer < self.count:
             return
         self.peers[peer].token_gone = not alive
+        self.peers[peer].token_seen = self.peers[peer].token_seen or alive
 
     def resume(self, t_s: float) -> None:
         """After a gap in the sense messages (a frozen process, a world restart).
@@ -244,7 +250,11 @@ class Leadership:
         if robot == self.index:
             return True
         peer = self.peers[robot]
-        return not peer.token_gone and t_s - peer.last_heard_s <= self.params.leader_timeout_s
+        if peer.token_gone:
+            return False
+        if peer.token_seen and peer.last_heard_s == -math.inf:
+            return True  # up and still booting: it will speak
+        return t_s - peer.last_heard_s <= self.params.leader_timeout_s
 
     def acting_leader(self, t_s: float) -> int | None:
         """The robot whose trajectory the formation follows at `t_s`, or None (none known, or
@@ -268,8 +278,12 @@ class Leadership:
         )
 
     def _leader_lost(self, t_s: float) -> bool:
-        if self.leader is not None and self.peers[self.leader].token_gone:
-            return True
+        if self.leader is not None:
+            peer = self.peers[self.leader]
+            if peer.token_gone:
+                return True
+            if peer.token_seen and peer.last_heard_s == -math.inf:
+                return False  # its process is up and has not spoken yet: still booting
         return t_s - self.waiting_since_s > self.params.leader_timeout_s
 
     def _hear_claim(self, sender: int, term: int, t_s: float) -> None:

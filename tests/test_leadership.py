@@ -72,6 +72,25 @@ def test_followers_give_a_leader_never_heard_the_boot_patience() -> None:
     assert follower.is_leader and follower.term == 1
 
 
+def test_a_booting_leader_whose_process_is_up_is_waited_for_however_long_it_takes() -> None:
+    # Containers start one by one: robot3 boots first, robot1's token appears, its first
+    # frame comes much later than robot3's boot patience.
+    follower = robot(2, boot_s=10.0)
+    follower.set_alive(0, True, 10.5)
+    follower.set_alive(1, True, 10.6)
+    follower.update(20.0)
+    assert following(follower, 0, 0)
+    follower.hear(0, 0, True, 20.5)
+    follower.update(20.6)
+    assert following(follower, 0, 0) and follower.acting_leader(20.6) == 0
+    # Once heard, a silence past the time-out is a loss again, token or not; robot2 (index 1)
+    # is up, still unheard: robot3 waits for its claim instead of claiming itself.
+    follower.update(21.2)
+    assert follower.acting_leader(21.2) is None and not follower.is_leader
+    follower.hear(1, 1, True, 21.3)
+    assert following(follower, 1, 1)
+
+
 def test_designated_leader_restarted_into_an_elected_swarm_follows() -> None:
     returning = robot(0, boot_s=40.0)
     returning.hear(2, 1, False, 40.05)
