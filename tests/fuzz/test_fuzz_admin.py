@@ -12,13 +12,11 @@ file, the fuzzy parameters and the rule base in use, the link profile, the proce
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import random
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +40,7 @@ from tests.fuzz.generate import (
 )
 from tests.fuzz.ledger import ACCEPTED, LEDGER
 from tests.fuzz.processes import PAPER, Robot, make_robot, make_world
+from tests.support.stand_in_processes import StandInFactory
 
 INPUTS = 10_000
 REASONS = frozenset(AdminRefusal)
@@ -234,36 +233,6 @@ def test_world_status_requests() -> None:
 # -- launcher ------------------------------------------------------------------------------------
 
 
-@dataclass
-class StandInProcess:
-    """What the launcher sees of a child: a pid, and whether it still runs."""
-
-    pid: int
-    returncode: int | None = None
-
-    def poll(self) -> int | None:
-        return self.returncode
-
-    def kill(self) -> None:
-        self.returncode = -9
-
-    def send_signal(self, _signal: int) -> None:
-        self.returncode = -15
-
-    def wait(self, timeout: float | None = None) -> int | None:
-        return self.returncode
-
-
-@dataclass
-class StandInFactory:
-    pids: Iterator[int] = field(default_factory=lambda: itertools.count(1000))
-    started: int = 0
-
-    def __call__(self, _argv: list[str], _log: object, _env: dict[str, str]) -> StandInProcess:
-        self.started += 1
-        return StandInProcess(next(self.pids))
-
-
 @pytest.fixture
 def launcher(tmp_path: Path) -> Iterator[tuple[Launcher, StandInFactory]]:
     factory = StandInFactory()
@@ -288,9 +257,9 @@ def test_launcher_requests(launcher: tuple[Launcher, StandInFactory], verb: str)
     process_table, factory = launcher
 
     def state() -> object:
-        return json.dumps(
-            {n: s.model_dump() for n, s in process_table.status().items()}
-        ), factory.started
+        return json.dumps({n: s.model_dump() for n, s in process_table.status().items()}), len(
+            factory.started
+        )
 
     counters = fuzz_verb(
         f"admin launcher/{verb}",

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -17,38 +15,10 @@ from robot_firmware.net.messages import (
     RestartReply,
 )
 from services.launcher.launcher import WORLD_MAX_QUICK_DEATHS, Launcher, LaunchPlan
+from tests.support.stand_in_processes import StandInFactory, StandInProcess
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
-
-
-@dataclass
-class StandIn:
-    pid: int
-    returncode: int | None = None
-
-    def poll(self) -> int | None:
-        return self.returncode
-
-    def kill(self) -> None:
-        self.returncode = -9
-
-    def send_signal(self, _signal: int) -> None:
-        self.returncode = -15
-
-    def wait(self, timeout: float | None = None) -> int | None:
-        return self.returncode
-
-
-@dataclass
-class Factory:
-    pids: Iterator[int] = field(default_factory=lambda: itertools.count(1000))
-    started: list[StandIn] = field(default_factory=list)
-
-    def __call__(self, _argv: list[str], _log: object, _env: dict[str, str]) -> StandIn:
-        child = StandIn(next(self.pids))
-        self.started.append(child)
-        return child
 
 
 @pytest.fixture
@@ -56,16 +26,16 @@ def launcher(tmp_path: Path) -> Iterator[Launcher]:
     plan = LaunchPlan(
         scenario=PAPER, robots=("robot1", "robot2"), out_dir=tmp_path, dashboard=False
     )
-    launcher = Launcher(plan, factory=Factory())  # type: ignore[arg-type]
+    launcher = Launcher(plan, factory=StandInFactory())  # type: ignore[arg-type]
     for name in launcher.children:
         launcher.start(name)
     yield launcher
     launcher.shutdown(grace_s=0.0)
 
 
-def _world(launcher: Launcher) -> StandIn:
+def _world(launcher: Launcher) -> StandInProcess:
     process = launcher.children["world"].process
-    assert isinstance(process, StandIn)
+    assert isinstance(process, StandInProcess)
     return process
 
 

@@ -1,0 +1,41 @@
+"""Child processes the launcher can supervise without starting anything: a process factory for
+`services.launcher.launcher.Launcher(plan, factory=...)` whose children only record signals."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+
+@dataclass
+class StandInProcess:
+    """What the launcher sees of a child: a pid, and whether it still runs."""
+
+    pid: int
+    returncode: int | None = None
+
+    def poll(self) -> int | None:
+        return self.returncode
+
+    def kill(self) -> None:
+        self.returncode = -9
+
+    def send_signal(self, _signal: int) -> None:
+        self.returncode = -15
+
+    def wait(self, timeout: float | None = None) -> int | None:
+        return self.returncode
+
+
+@dataclass
+class StandInFactory:
+    """Makes a `StandInProcess` per start; `started` lists them in order."""
+
+    pids: Iterator[int] = field(default_factory=lambda: itertools.count(1000))
+    started: list[StandInProcess] = field(default_factory=list)
+
+    def __call__(self, _argv: list[str], _log: object, _env: dict[str, str]) -> StandInProcess:
+        child = StandInProcess(next(self.pids))
+        self.started.append(child)
+        return child
