@@ -38,6 +38,7 @@ from robot_firmware.control.trajectories import (
     Trajectory,
 )
 from swarm_config.body import BodyParams
+from swarm_config.faults import PROCESS_ROLES, ScheduledFault, fault_subjects
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.sensors import PositioningParams, SonarParams
@@ -195,6 +196,8 @@ class Scenario(_Strict):
     radio: RadioSpec = RadioSpec()
     metrics: MetricsConfig = MetricsConfig()
     fitness: FitnessSpec = FitnessSpec()
+    faults: list[ScheduledFault] = Field(default_factory=list)
+    """A fault campaign: what to inject at which simulation time (swarm_config/faults.py)."""
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -218,6 +221,13 @@ class Scenario(_Strict):
         ticks = self.duration_s / self.controller.control_period_s
         if ticks > 10_000_000:
             raise ValueError("duration_s / control_period_s is over ten million ticks")
+        known = set(names) | set(PROCESS_ROLES)
+        for k, entry in enumerate(self.faults):
+            unknown = [s for s in fault_subjects(entry.fault) if s not in known]
+            if unknown:
+                raise ValueError(f"faults[{k}] names {unknown[0]!r}, which is not in this swarm")
+            if entry.at_s > self.duration_s:
+                raise ValueError(f"faults[{k}] is at {entry.at_s} s, after the run ends")
         return self
 
     @property
