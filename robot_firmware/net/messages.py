@@ -17,6 +17,8 @@ JSON ones are here:
 | `admin/launcher/status`               | launcher  | `LauncherStatusReply`                  |
 | `admin/launcher/kill`                 | launcher  | `ProcessRequest` -> `KillReply`        |
 | `admin/launcher/restart`              | launcher  | `ProcessRequest` -> `RestartReply`     |
+| `admin/launcher/stop`                 | launcher  | `ProcessRequest` -> `StopReply`        |
+| `admin/launcher/cont`                 | launcher  | `ProcessRequest` -> `ContReply`        |
 
 Every admin reply is either its verb's reply model (`ok` true) or an `AdminError` (`ok` false,
 with the reason).  Readers tolerate fields they do not know (`extra="ignore"`), so a producer may
@@ -346,6 +348,8 @@ class ProcessStatus(Message):
     running: bool
     exit_code: int | None
     killed: bool
+    stopped: bool = False
+    """SIGSTOPped (`admin/launcher/stop`) and not continued since: alive but frozen."""
     restarts: int
     log: str
 
@@ -357,8 +361,8 @@ class LauncherStatusReply(AdminOk):
 
 
 class ProcessRequest(Message):
-    """`admin/launcher/kill` and `.../restart`: which of the launcher's processes (a robot,
-    `world`, `router` or `dashboard`)."""
+    """`admin/launcher/kill`, `.../restart`, `.../stop` and `.../cont`: which of the launcher's
+    processes (a robot, `world`, `router` or `dashboard`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -375,6 +379,16 @@ class RestartReply(AdminOk):
     pid: int | None
 
 
+class StopReply(AdminOk):
+    stopped: bool
+    """False when the process was not running."""
+
+
+class ContReply(AdminOk):
+    continued: bool
+    """False when the process was not running."""
+
+
 AdminReply = (
     RobotStatusReply
     | RegsDumpReply
@@ -385,6 +399,8 @@ AdminReply = (
     | LauncherStatusReply
     | KillReply
     | RestartReply
+    | StopReply
+    | ContReply
     | AdminError
 )
 

@@ -8,8 +8,11 @@ in order (dashboard, robots, world, router), leaving `<out>/summary.json` from t
 The dashboard (`swarm dashboard`, the live Rerun viewer and `<out>/dashboard.rrd`) starts with
 them unless `dashboard=False`.  While it runs, the launcher answers admin queries on
 `swarm/<swarm>/admin/launcher/<verb>`: `status` (processes and PIDs), `kill` (SIGKILL a
-process: a robot, the world, the dashboard or the router; a power cut) and `restart` (start it
-again, killing it first if it still runs); `swarm status|kill|restart` send them.
+process: a robot, the world, the dashboard or the router; a power cut), `restart` (start it
+again, killing it first if it still runs), `stop` (SIGSTOP: a frozen board that keeps its state)
+and `cont` (SIGCONT: it runs on from where it froze); `swarm status|kill|restart` and
+`swarm fault` send them.  A stopped process is not a dead one: the supervisor leaves it alone,
+and `status` shows it as `stopped` until `cont`, `kill` or `restart`.
 A router that dies is started again at once; every other process is a client that waits for
 it and reconnects.  A world that dies (crashes, or is killed from outside the launcher) is
 started again too, and resumes from its last checkpoint in `<out>/checkpoints/`
@@ -49,11 +52,13 @@ from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import (
     AdminError,
     AdminRefusal,
+    ContReply,
     KillReply,
     LauncherStatusReply,
     ProcessRequest,
     ProcessStatus,
     RestartReply,
+    StopReply,
     refusal_of,
 )
 from robot_firmware.net.session import open_client
@@ -94,6 +99,8 @@ class Child:
     log_file: IO[bytes] | None = None
     restarts: int = 0
     killed: bool = False
+    stopped: bool = False
+    """SIGSTOPped by the launcher and not continued since."""
     started_mono_s: float = 0.0
 
     @property
@@ -243,6 +250,7 @@ class Launcher:
             child.log_file = child.log_path.open("ab")
         child.process = self.factory(child.argv, child.log_file, self._env(name))
         child.killed = False
+        child.stopped = False
         child.started_mono_s = time.monotonic()
         log.info("started %s (pid %d)", name, child.process.pid)
 
@@ -254,6 +262,27 @@ class Launcher:
         child.process.kill()
         child.process.wait()
         child.killed = True
+        child.stopped = False
+        return True
+
+    def freeze(self, name: str) -> bool:
+        """SIGSTOP, a frozen board: the process keeps its state and runs on after `thaw`.
+        False when it does not run."""
+        child = self.children[name]
+        if not child.running or child.process is None:
+            return False
+        child.process.send_signal(signal.SIGSTOP)
+        child.stopped = True
+        return True
+
+    def thaw(self, name: str) -> bool:
+        """SIGCONT: a stopped process runs on (a running one is unaffected).  False when it
+        does not run."""
+        child = self.children[name]
+        if not child.running or child.process is None:
+            return False
+        child.process.send_signal(signal.SIGCONT)
+        child.stopped = False
         return True
 
     def restart(self, name: str) -> None:
@@ -270,6 +299,7 @@ class Launcher:
                 if child.process is None or child.running
                 else child.process.returncode,
                 killed=child.killed,
+                stopped=child.stopped and child.running,
                 restarts=child.restarts,
                 log=str(child.log_path),
             )
@@ -302,12 +332,22 @@ class Launcher:
         process = self.children[name].process
         return RestartReply(restarted=name, pid=process.pid if process else None)
 
+    def _stop_request(self, body: bytes) -> StopReply | AdminError:
+        name = self._process_named(body)
+        return name if isinstance(name, AdminError) else StopReply(stopped=self.freeze(name))
+
+    def _cont_request(self, body: bytes) -> ContReply | AdminError:
+        name = self._process_named(body)
+        return name if isinstance(name, AdminError) else ContReply(continued=self.thaw(name))
+
     def admin_handlers(self) -> dict[str, Handler]:
         """The launcher's admin verbs, served from its supervision loop."""
         return {
             "status": lambda _body: LauncherStatusReply(processes=self.status()),
             "kill": self._kill_request,
             "restart": self._restart_request,
+            "stop": self._stop_request,
+            "cont": self._cont_request,
         }
 
     def _serve(self) -> None:
@@ -375,6 +415,9 @@ class Launcher:
             child = self.children[name]
             if child.running and child.process is not None:
                 child.process.send_signal(signal.SIGTERM)
+                if child.stopped:  # a stopped process acts on SIGTERM once continued
+                    child.process.send_signal(signal.SIGCONT)
+                    child.stopped = False
                 try:
                     child.process.wait(timeout=grace_s)
                 except subprocess.TimeoutExpired:

@@ -1,7 +1,9 @@
-"""The launcher's supervision of the world and its kill/restart verbs, with stand-in children."""
+"""The launcher's supervision of the world and its kill/restart/stop/cont verbs, with stand-in
+children."""
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,9 +12,12 @@ import pytest
 from robot_firmware.net.messages import (
     AdminError,
     AdminRefusal,
+    ContReply,
     KillReply,
+    LauncherStatusReply,
     ProcessRequest,
     RestartReply,
+    StopReply,
 )
 from services.launcher.launcher import WORLD_MAX_QUICK_DEATHS, Launcher, LaunchPlan
 from tests.support.stand_in_processes import StandInFactory, StandInProcess
@@ -33,10 +38,24 @@ def launcher(tmp_path: Path) -> Iterator[Launcher]:
     launcher.shutdown(grace_s=0.0)
 
 
-def _world(launcher: Launcher) -> StandInProcess:
-    process = launcher.children["world"].process
+def _process(launcher: Launcher, name: str) -> StandInProcess:
+    process = launcher.children[name].process
     assert isinstance(process, StandInProcess)
     return process
+
+
+def _world(launcher: Launcher) -> StandInProcess:
+    return _process(launcher, "world")
+
+
+def _request(name: str) -> bytes:
+    return ProcessRequest(process=name).model_dump_json().encode()
+
+
+def _status(launcher: Launcher) -> LauncherStatusReply:
+    reply = launcher.admin_handlers()["status"](b"")
+    assert isinstance(reply, LauncherStatusReply)
+    return reply
 
 
 def test_a_world_that_dies_is_started_again(launcher: Launcher) -> None:
@@ -85,3 +104,77 @@ def test_an_unknown_process_is_refused_and_nothing_changes(launcher: Launcher) -
     assert "robot9" in reply.error and "world" in reply.error
     assert {name: child.process for name, child in launcher.children.items()} == before
     assert all(child.running for child in launcher.children.values())
+
+
+@pytest.mark.parametrize("name", ["robot1", "world", "router"])
+def test_stop_freezes_a_process_and_cont_lets_it_run_on(launcher: Launcher, name: str) -> None:
+    handlers = launcher.admin_handlers()
+    process = _process(launcher, name)
+    assert handlers["stop"](_request(name)) == StopReply(stopped=True)
+    assert process.signals == [signal.SIGSTOP]
+    assert _status(launcher).processes[name].stopped
+    assert _status(launcher).processes[name].running
+    assert handlers["cont"](_request(name)) == ContReply(continued=True)
+    assert process.signals == [signal.SIGSTOP, signal.SIGCONT]
+    status = _status(launcher).processes[name]
+    assert not status.stopped and status.running and status.restarts == 0
+    assert _process(launcher, name) is process
+
+
+def test_a_stopped_world_is_not_restarted_by_the_supervisor(launcher: Launcher) -> None:
+    world = _world(launcher)
+    launcher.admin_handlers()["stop"](_request("world"))
+    for _ in range(3):
+        assert launcher.supervise_world() is None
+    assert _world(launcher) is world and launcher.children["world"].restarts == 0
+    assert _status(launcher).processes["world"].stopped
+
+
+def test_stop_and_cont_of_a_process_that_does_not_run_change_nothing(
+    launcher: Launcher,
+) -> None:
+    handlers = launcher.admin_handlers()
+    handlers["kill"](_request("robot2"))
+    killed = _process(launcher, "robot2")
+    assert handlers["stop"](_request("robot2")) == StopReply(stopped=False)
+    assert handlers["cont"](_request("robot2")) == ContReply(continued=False)
+    assert killed.signals == []
+    status = _status(launcher).processes["robot2"]
+    assert status.killed and not status.stopped and not status.running
+
+
+def test_kill_and_restart_of_a_stopped_process_clear_the_stop(launcher: Launcher) -> None:
+    handlers = launcher.admin_handlers()
+    handlers["stop"](_request("robot1"))
+    restarted = handlers["restart"](_request("robot1"))
+    assert isinstance(restarted, RestartReply)
+    status = _status(launcher).processes["robot1"]
+    assert not status.stopped and status.running and status.restarts == 1
+    handlers["stop"](_request("robot2"))
+    assert handlers["kill"](_request("robot2")) == KillReply(killed=True)
+    assert not _status(launcher).processes["robot2"].stopped
+
+
+def test_shutdown_continues_a_stopped_process_so_it_sees_its_sigterm(
+    launcher: Launcher,
+) -> None:
+    launcher.admin_handlers()["stop"](_request("robot1"))
+    frozen = _process(launcher, "robot1")
+    launcher.shutdown(grace_s=0.0)
+    assert frozen.signals == [signal.SIGSTOP, signal.SIGTERM, signal.SIGCONT]
+
+
+@pytest.mark.parametrize("verb", ["stop", "cont"])
+def test_stop_and_cont_of_an_unknown_process_are_refused_and_nothing_changes(
+    launcher: Launcher, verb: str
+) -> None:
+    before = {name: child.process for name, child in launcher.children.items()}
+    for body in (b'{"process": "robot9"}', b'{"process": "dashboard"}'):
+        reply = launcher.admin_handlers()[verb](body)
+        assert isinstance(reply, AdminError) and reply.reason == AdminRefusal.UNKNOWN_PROCESS
+    reply = launcher.admin_handlers()[verb](b'{"robot": "robot1"}')
+    assert isinstance(reply, AdminError) and reply.reason == AdminRefusal.INVALID_REQUEST
+    assert {name: child.process for name, child in launcher.children.items()} == before
+    for child in launcher.children.values():
+        assert child.running and not child.stopped
+        assert isinstance(child.process, StandInProcess) and child.process.signals == []

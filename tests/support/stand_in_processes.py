@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import itertools
+import signal
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -14,6 +15,8 @@ class StandInProcess:
 
     pid: int
     returncode: int | None = None
+    signals: list[int] = field(default_factory=list)
+    """Every signal sent with `send_signal`, in order."""
 
     def poll(self) -> int | None:
         return self.returncode
@@ -21,8 +24,12 @@ class StandInProcess:
     def kill(self) -> None:
         self.returncode = -9
 
-    def send_signal(self, _signal: int) -> None:
-        self.returncode = -15
+    def send_signal(self, sig: int) -> None:
+        """SIGSTOP and SIGCONT leave it running, as they leave a real process; any other
+        signal ends it."""
+        self.signals.append(sig)
+        if sig not in (signal.SIGSTOP, signal.SIGCONT):
+            self.returncode = -sig
 
     def wait(self, timeout: float | None = None) -> int | None:
         return self.returncode
