@@ -351,18 +351,28 @@ def _print_headline(s: dict[str, object]) -> None:
 
 
 def _ask(args: argparse.Namespace, target: str, verb: str, body: BaseModel | bytes | None) -> bytes:
+    payload = _ask_if_answered(args, target, verb, body)
+    if payload is None:
+        raise _no_answer(args, target)
+    return payload
+
+
+def _no_answer(args: argparse.Namespace, target: str) -> UsageError:
+    return UsageError(
+        f"no answer from {target} of swarm {_swarm(args)!r} at {_endpoints(args.connect)[0]} "
+        f"(is it running? start one with `swarm up`)"
+    )
+
+
+def _ask_if_answered(
+    args: argparse.Namespace, target: str, verb: str, body: BaseModel | bytes | None
+) -> bytes | None:
+    """The reply's payload, or None when nobody answered within --timeout."""
     from robot_firmware.net.admin import ask
 
     endpoint = _endpoints(args.connect)[0]
-    swarm = _swarm(args)
     credentials = _operator_credentials(args.credentials)
-    payload = ask(swarm, endpoint, target, verb, body, args.timeout, credentials)
-    if payload is None:
-        raise UsageError(
-            f"no answer from {target} of swarm {swarm!r} at {endpoint} "
-            f"(is it running? start one with `swarm up`)"
-        )
-    return payload
+    return ask(_swarm(args), endpoint, target, verb, body, args.timeout, credentials)
 
 
 def _print_reply(payload: bytes) -> int:
@@ -390,6 +400,35 @@ def _cmd_restart(args: argparse.Namespace) -> int:
     from robot_firmware.net.messages import ProcessRequest
 
     return _print_reply(_ask(args, "launcher", "restart", ProcessRequest(process=args.process)))
+
+
+def _cmd_fault(args: argparse.Namespace) -> int:
+    """Send one fault to the world's `fault` verb; a process fault the world does not answer
+    (it is down or frozen, or it is the fault's own target) goes to the launcher directly."""
+    from robot_firmware.net.messages import ProcessRequest
+    from services.cli.faults import FaultArgumentError, fault_from_args, fault_json
+    from swarm_config.faults import fault_subjects
+
+    try:
+        fault = fault_from_args(args)
+    except FaultArgumentError as exc:
+        raise UsageError(str(exc)) from None
+    body = fault_json(fault)
+    if args.dry_run:
+        print(body.decode())
+        return 0
+    payload = _ask_if_answered(args, "world", "fault", body)
+    if payload is None and fault.kind != "process":
+        raise _no_answer(args, "world")
+    if payload is None:
+        process = fault_subjects(fault)[0]
+        print(
+            f"swarm fault: no answer from the world; asking the launcher to {fault.fault} "
+            f"{process} (not recorded in events.jsonl unless the world sees it)",
+            file=sys.stderr,
+        )
+        payload = _ask(args, "launcher", fault.fault, ProcessRequest(process=process))
+    return _print_reply(payload)
 
 
 def _cmd_net(args: argparse.Namespace) -> int:
@@ -549,7 +588,9 @@ def build_parser() -> argparse.ArgumentParser:
             f"writes one per process to DIR/{CREDENTIALS_DIR_NAME}/",
         )
 
-    def admin_query_options(p: argparse.ArgumentParser) -> None:
+    def admin_query_options(p: argparse.ArgumentParser, suppress_defaults: bool = False) -> None:
+        """suppress_defaults: for a subcommand's copy of options its parent has too, so that
+        one given before the subcommand is not reset by the subcommand's default."""
         swarm_options(p)
         credentials_option(p, f", else {DEFAULT_OPERATOR_CREDENTIALS} when it exists")
         p.add_argument(
@@ -559,6 +600,10 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="S",
             help="seconds to wait for the answer (default: 3)",
         )
+        if suppress_defaults:
+            for action in p._actions:
+                if action.dest in ("swarm", "connect", "credentials", "timeout"):
+                    action.default = argparse.SUPPRESS
 
     up = sub.add_parser(
         "up",
@@ -783,10 +828,12 @@ def build_parser() -> argparse.ArgumentParser:
     router.add_argument("--config", metavar="FILE", help="json5 router config")
     router.set_defaults(handler=_cmd_router)
 
+    from services.cli.faults import add_fault_parser
     from services.dashboard.cli import add_dashboard_parsers
     from services.scenario.cli import add_scenario_parser
     from services.tuner.cli import add_tune_parser
 
+    add_fault_parser(sub, admin_query_options, _cmd_fault)
     add_dashboard_parsers(sub)
     add_tune_parser(sub)
     add_scenario_parser(sub)
