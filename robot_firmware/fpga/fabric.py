@@ -9,7 +9,8 @@ and leave the robot:
 * `hw_apply_sense(encoder_counts, sonar_echo_times_s, fix)` applies one `wire/sense`
   message;
 * `hw_read_actuation()` gives what the motor pins carry, for `wire/act`;
-* `tick(dt_ns)` advances the time-driven behaviour of every IP.
+* `tick(dt_ns)` advances the time-driven behaviour of every IP;
+* `faults` holds the register faults injected into the IPs (robot_firmware/fpga/faults.py).
 
 The firmware side sees only `fabric.bus`.
 """
@@ -39,6 +40,7 @@ from robot_firmware.fpga.address_map import (
 from robot_firmware.fpga.bus import Bus
 from robot_firmware.fpga.clock import ClockBlock
 from robot_firmware.fpga.digital_filter import DigitalFilter
+from robot_firmware.fpga.faults import RegisterFaults
 from robot_firmware.fpga.positioning import PositionFix, PositioningReceiver
 from robot_firmware.fpga.pwm import Pwm
 from robot_firmware.fpga.qep import Qep
@@ -118,6 +120,7 @@ class Fabric:
             *self.qep,
             *self.sonar,
         )
+        self.faults = RegisterFaults(self)
 
     @property
     def peripherals(self) -> Iterator[Peripheral]:

@@ -13,6 +13,9 @@ come for STALE_MS, VALID clears by itself and LOST is raised.
 
 To read a consistent fix a driver reads SEQ, the pose, then SEQ again, and retries if
 the two differ.
+
+A register fault (robot_firmware/fpga/faults.py) can block the fixes (`hw_block_fixes`, an
+outage): nothing is latched, AGE_MS grows and VALID clears after STALE_MS.
 """
 
 from __future__ import annotations
@@ -167,6 +170,7 @@ class PositioningReceiver(Peripheral):
         self._last_stamp_ns: int | None = None
         self._age_ns: int | None = None
         self._valid = False
+        self._fixes_blocked = False
 
     def tick(self, dt_ns: int) -> None:
         if self._age_ns is None:
@@ -181,6 +185,8 @@ class PositioningReceiver(Peripheral):
 
     def hw_set_fix(self, fix: PositionFix) -> None:
         """Deliver a fix from the tracking system (or its loss, when `fix.valid` is False)."""
+        if self._fixes_blocked:
+            return
         if not fix.valid:
             self._set_valid(False)
             return
@@ -206,6 +212,12 @@ class PositioningReceiver(Peripheral):
 
     def hw_valid(self) -> bool:
         return self._valid
+
+    def hw_block_fixes(self, blocked: bool) -> None:
+        """Fault injection: while blocked the receiver latches nothing the tracking system
+        sends (an outage): AGE_MS grows, VALID clears after STALE_MS. The next new fix after
+        the block is taken as usual."""
+        self._fixes_blocked = blocked
 
     # -- internals -------------------------------------------------------------------
 

@@ -6,6 +6,10 @@ SATURATED); a period of 0 holds the output low. While the watchdog cuts the outp
 (`hw_set_safe_stop(True)`, wired by the fabric) the output is held low whatever the
 registers say; the registers keep their values, so the output resumes when the cut
 ends. The world reads the resulting signed duty cycle with `hw_output`.
+
+A register fault (robot_firmware/fpga/faults.py) can hold the output stage at a fixed duty
+(`hw_hold_output`): the pins then carry it whatever the registers say, STATUS shows it, and
+only the watchdog's cut still holds them low.
 """
 
 from __future__ import annotations
@@ -109,6 +113,7 @@ class Pwm(Peripheral):
         super().__init__(name, REGISTERS)
         self._clock_hz = clock_hz
         self._safe_stop = False
+        self._held_duty: float | None = None
         refresh = self._on_setting
         self._write_actions = {
             CTRL.offset: refresh,
@@ -123,8 +128,21 @@ class Pwm(Peripheral):
         self._safe_stop = active
         self._on_setting(0)
 
+    def hw_hold_output(self, duty: float | None) -> None:
+        """Fault injection: the output stage holds signed `duty` (-1..1) whatever CTRL, PERIOD
+        and DUTY say (a stuck generator); None releases it. The watchdog's cut still wins."""
+        if duty is not None and not -1.0 <= duty <= 1.0:
+            raise ValueError(f"held duty {duty} outside -1..1")
+        self._held_duty = None if duty is None else float(duty)
+        self._on_setting(0)
+
     def hw_output(self) -> PwmOutput:
         period = self._get(PERIOD_TICKS)
+        if self._held_duty is not None:
+            frequency_hz = self._clock_hz() / period if period else 0.0
+            if self._safe_stop:
+                return PwmOutput(0.0, False, frequency_hz)
+            return PwmOutput(self._held_duty, True, frequency_hz)
         enabled = bool(self._get_field(CTRL_EN)) and not self._safe_stop and period > 0
         if not enabled:
             return PwmOutput(0.0, False, self._clock_hz() / period if period else 0.0)
@@ -139,8 +157,14 @@ class Pwm(Peripheral):
         period = self._get(PERIOD_TICKS)
         duty = self._get(DUTY_TICKS)
         enabled = bool(self._get_field(CTRL_EN))
+        held = self._held_duty
+        if held is None:
+            saturated = 0 < period <= duty
+            active = enabled and not self._safe_stop and period > 0 and duty > 0
+        else:
+            saturated = abs(held) >= 1.0
+            active = not self._safe_stop and held != 0.0
         status = STATUS_SAFE_STOP.insert(0, int(self._safe_stop))
-        status = STATUS_SATURATED.insert(status, int(0 < period <= duty))
-        active = enabled and not self._safe_stop and period > 0 and duty > 0
+        status = STATUS_SATURATED.insert(status, int(saturated))
         status = STATUS_ACTIVE.insert(status, int(active))
         self._store(STATUS, status)

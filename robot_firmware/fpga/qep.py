@@ -11,6 +11,9 @@ the OVERFLOW event is set. Every WINDOW_TICKS fabric clock cycles the counts of 
 window are latched into SPEED (signed counts per window) and pushed through the speed
 filter into SPEED_FILTERED, and SPEED_NEW is set. If one `tick` spans several
 windows, SPEED is the mean per window over them. WINDOW_TICKS 0 stops the latching.
+
+Register faults (robot_firmware/fpga/faults.py) cut the encoder lines (`hw_cut_lines`) or
+force bits of COUNT (`hw_force_count_bits`).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from collections.abc import Callable
 from robot_firmware.fpga.clock import DEFAULT_FABRIC_CLOCK_HZ
 from robot_firmware.fpga.registers import (
     WORD_BITS,
+    WORD_MASK,
     Access,
     Field,
     Peripheral,
@@ -154,6 +158,9 @@ class Qep(Peripheral):
         self._count = 0
         self._window_counts = 0
         self._window_elapsed_ns = 0
+        self._lines_cut = False
+        self._count_forced_mask = 0
+        self._count_forced_bits = 0
         self._write_actions = {CLEAR.offset: self._on_clear}
 
     def tick(self, dt_ns: int) -> None:
@@ -180,7 +187,7 @@ class Qep(Peripheral):
         """The wheel encoder's running 4x edge count, as the pins have seen it so far."""
         edges = operator.index(edges_counts)
         previous, self._last_edges = self._last_edges, edges
-        if previous is None or not self._get_field(CTRL_EN):
+        if previous is None or self._lines_cut or not self._get_field(CTRL_EN):
             return
         delta = edges - previous
         if self._get_field(CTRL_INVERT):
@@ -194,15 +201,34 @@ class Qep(Peripheral):
         if wrapped != position:
             self._set_bits(EVENTS_OVERFLOW)
         self._count = wrapped
-        self._store(COUNT, as_unsigned32(wrapped))
+        self._store_count()
 
     def hw_count(self) -> int:
-        """COUNT as a signed integer."""
+        """The decoder's position as a signed integer (COUNT but for forced bits)."""
         return self._count
+
+    def hw_cut_lines(self, cut: bool) -> None:
+        """Fault injection: while the A/B lines are cut the decoder sees no edge, so COUNT
+        holds and SPEED falls to 0; the edges of the cut are lost, counting resumes after it."""
+        self._lines_cut = cut
+
+    def hw_force_count_bits(self, mask: int, bits: int) -> None:
+        """Fault injection: the bits of COUNT set in `mask` read as the same bits of `bits`,
+        whatever the position (stuck register bits); mask 0 releases them. The position
+        itself counts on, so a released COUNT reads true at once."""
+        self._count_forced_mask = mask & WORD_MASK
+        self._count_forced_bits = bits & self._count_forced_mask
+        self._store_count()
 
     # -- side effects ----------------------------------------------------------------
 
     def _on_clear(self, value: int) -> None:
         if CLEAR_COUNT.extract(value):
             self._count = 0
-            self._store(COUNT, 0)
+            self._store_count()
+
+    def _store_count(self) -> None:
+        word = as_unsigned32(self._count)
+        if self._count_forced_mask:
+            word = (word & ~self._count_forced_mask) | self._count_forced_bits
+        self._store(COUNT, word)

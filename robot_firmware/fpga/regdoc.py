@@ -16,6 +16,7 @@ from pathlib import Path
 
 from robot_firmware.fpga.address_map import BRIDGE_BASE, BRIDGE_SPAN_BYTES
 from robot_firmware.fpga.fabric import Fabric
+from robot_firmware.fpga.faults import FAULT_EFFECTS
 from robot_firmware.fpga.registers import Access, Peripheral, Register
 
 DEFAULT_PATH = Path(__file__).resolve().parents[2] / "docs" / "registers.md"
@@ -66,7 +67,34 @@ def render_markdown(fabric: Fabric | None = None) -> str:
     for instances in groups.values():
         lines.append("")
         lines.extend(_render_group(instances))
+    lines.append("")
+    lines.extend(_render_fault_effects())
     return "\n".join(lines) + "\n"
+
+
+def _render_fault_effects() -> list[str]:
+    """The register faults (robot_firmware/fpga/faults.py): where each acts, what the firmware
+    sees and does."""
+    lines = [
+        "## Fault injection",
+        "",
+        "Register faults (`swarm fault`, the world's and each robot's `fault` admin verb, a "
+        "scenario's `faults:` schedule) act on the hardware side of the IPs, below the "
+        "firmware: the firmware meets them only in the registers it reads and the pins it "
+        "drives. A fault on the same output as an active one replaces it; `clear_registers` "
+        "releases all, and the IPs then behave as if never faulted. A robot's `fault` verb "
+        "with an empty body lists its active faults; its telemetry names them in "
+        "`register_faults`.",
+        "",
+        "| Fault | Acts on | What the firmware sees | What the firmware does |",
+        "|---|---|---|---|",
+    ]
+    lines.extend(
+        f"| `{e.fault}` | {_cell(e.acts_on)} | {_cell(e.firmware_sees)} "
+        f"| {_cell(e.firmware_does)} |"
+        for e in FAULT_EFFECTS
+    )
+    return lines
 
 
 def _render_group(instances: Sequence[tuple[int, Peripheral]]) -> list[str]:

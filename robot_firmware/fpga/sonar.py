@@ -11,6 +11,9 @@ is ignored and sets MISSED. EVENTS clears when read.
 
 The range is width / f_fabric * c / 2 with c = SPEED_OF_SOUND_MPS;
 `range_m_for_width_ticks` and `echo_time_s_for_range_m` do that conversion.
+
+A register fault (robot_firmware/fpga/faults.py) can block the echo (`hw_block_echo`): every
+measurement triggered while it lasts ends in TIMEOUT.
 """
 
 from __future__ import annotations
@@ -146,6 +149,7 @@ class Sonar(Peripheral):
         self._echo_time_s: float | None = None
         self._remaining_ns: int | None = None
         self._result_ticks: int | None = None
+        self._echo_blocked = False
         self._write_actions = {TRIGGER.offset: self._on_trigger}
 
     def tick(self, dt_ns: int) -> None:
@@ -176,6 +180,11 @@ class Sonar(Peripheral):
     def hw_busy(self) -> bool:
         return self._remaining_ns is not None
 
+    def hw_block_echo(self, blocked: bool) -> None:
+        """Fault injection: while blocked the receiver hears no echo (a cut transducer), so
+        each measurement triggered ends after TIMEOUT_TICKS with TIMEOUT, WIDTH_TICKS kept."""
+        self._echo_blocked = blocked
+
     # -- side effects ----------------------------------------------------------------
 
     def _on_trigger(self, value: int) -> None:
@@ -186,7 +195,7 @@ class Sonar(Peripheral):
             return
         clock_hz = max(1, self._clock_hz())
         timeout_ticks = self._get(TIMEOUT_TICKS)
-        echo_s = self._echo_time_s
+        echo_s = None if self._echo_blocked else self._echo_time_s
         width_ticks = None if echo_s is None else round(echo_s * clock_hz)
         if width_ticks is None or width_ticks > timeout_ticks:
             self._result_ticks = None

@@ -126,8 +126,7 @@ class Watchdog(Peripheral):
             return
         self._remaining_ns = max(0, self._remaining_ns - dt_ns)
         if self._remaining_ns == 0:
-            self._store(EXPIRE_COUNT, (self._get(EXPIRE_COUNT) + 1) & WORD_MASK)
-            self._set_cut(True)
+            self._expire()
         self._publish()
 
     # -- hardware side ---------------------------------------------------------------
@@ -139,6 +138,16 @@ class Watchdog(Peripheral):
 
     def hw_expired(self) -> bool:
         return self._expired
+
+    def hw_force_expire(self) -> None:
+        """Fault injection: the count reaches zero now, as if the firmware had stopped kicking.
+
+        EXPIRED is set, EXPIRE_COUNT increments and the outputs are cut until the next good
+        kick, exactly as at a timeout (nothing new if the watchdog has already expired)."""
+        self._remaining_ns = 0
+        if not self._expired:
+            self._expire()
+        self._publish()
 
     # -- side effects ----------------------------------------------------------------
 
@@ -161,6 +170,10 @@ class Watchdog(Peripheral):
         self._remaining_ns = self._timeout_ns()
         self._set_cut(False)
         self._publish()
+
+    def _expire(self) -> None:
+        self._store(EXPIRE_COUNT, (self._get(EXPIRE_COUNT) + 1) & WORD_MASK)
+        self._set_cut(True)
 
     def _set_cut(self, cut: bool) -> None:
         if cut == self._expired:
