@@ -2,7 +2,8 @@
 
 Left: the swarm map (true poses, heading arrows, trails, desired rings, sonar echoes, the
 leader's reference path and reference point, obstacles with their APF influence ring) above a
-short event log.
+short event log and the fault timeline (one row per kind of run event: faults injected and
+refused, robots down and up, leader changes, world resumed).
 Right, top to bottom: the leader's tracking error (paper Fig. 12), the followers' formation
 errors (Fig. 13), the PID gains K_P / K_I / K_D in tabs as the fuzzy scheduler moves them, and
 the radio's delivery ratio and latency. Every view runs on the `sim_time` timeline.
@@ -13,6 +14,7 @@ from __future__ import annotations
 import rerun.blueprint as rrb
 
 from services.dashboard import entities
+from services.dashboard.scene import EVENT_KINDS
 
 GAIN_TITLES = {"kp": "K_P", "ki": "K_I", "kd": "K_D"}
 
@@ -45,7 +47,12 @@ def default_blueprint(map_bounds_m: tuple[float, float, float, float]) -> rrb.Bl
             rrb.Vertical(
                 swarm_map,
                 rrb.TextLogView(origin=f"/{entities.EVENTS}", name="Events"),
-                row_shares=[6, 1],
+                rrb.TimeSeriesView(
+                    origin=f"/{entities.TIMELINE_MARKERS}",
+                    name="Fault timeline: faults and what followed, one row per kind",
+                    axis_y=rrb.ScalarAxis(range=(-0.5, len(EVENT_KINDS) - 0.5)),
+                ),
+                row_shares=[5, 1, 1],
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(

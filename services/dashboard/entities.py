@@ -21,7 +21,10 @@ radio/delivery_ratio             delivered / (delivered + dropped): since the wo
                                  over the last second of simulated time
 radio/latency_ms/configured      the link profile's latency, and latency + jitter
 radio/latency_ms/measured        the world's p50 and p99, when the truth carries them
-events                           robots, world and launcher joining and leaving
+events                           robots, world and launcher joining and leaving, and every run
+                                 event of the world (faults injected or refused, robot down and
+                                 up, leader changes, world resumed) at its simulation time
+timeline/<kind>                  one marker per run event on its kind's row: the fault timeline
 
 Several archetypes share one entity where they are logged together (a robot's body, heading,
 ring and trail), so each flush of the recording makes one chunk per entity, not one per layer.
@@ -51,6 +54,7 @@ LATENCY_CONFIGURED = "radio/latency_ms/configured"
 LATENCY_MEASURED = "radio/latency_ms/measured"
 
 EVENTS = "events"
+TIMELINE_MARKERS = "timeline"
 
 TIMELINE = "sim_time"
 """The one timeline: simulated seconds from truth and telemetry `t_s`."""
@@ -74,3 +78,7 @@ def gain_group(gain: Gain) -> str:
 
 def gain(gain: Gain, name: str) -> str:
     return f"{gain_group(gain)}/{name}"
+
+
+def event_marker(kind: str) -> str:
+    return f"{TIMELINE_MARKERS}/{kind}"

@@ -1,11 +1,13 @@
 """The live dashboard: a Zenoh client that streams a running swarm into Rerun.
 
-It subscribes to `truth`, every robot's `telemetry` and the liveliness tokens under `alive/`
-and never publishes, queries or declares a token, so starting, killing or restarting it changes
-nothing in the swarm (DESIGN.md §2: the dashboard must never influence the swarm). Zenoh
-callbacks only put the sample on a bounded queue (a full queue drops the sample and counts it);
-the main thread parses, turns messages into records (`SwarmScene`) and logs them on the
-`sim_time` timeline.
+It subscribes to `truth`, every robot's `telemetry`, the world's run `events` and the liveliness
+tokens under `alive/` and never publishes, queries or declares a token, so starting, killing or
+restarting it changes nothing in the swarm (DESIGN.md §2: the dashboard must never influence
+the swarm). Zenoh callbacks only put the sample on a bounded queue (a full queue drops the
+sample and counts it); the main thread parses, turns messages into records (`SwarmScene`) and
+logs them on the `sim_time` timeline.  Run events that happened before the dashboard subscribed
+(it started late, or was restarted) are read from `<out>/events.jsonl`, the world's record of
+the run; an event seen both there and live is logged once.
 
 One Rerun recording goes to two sinks at once: a gRPC server that the web viewer connects to
 (it keeps up to `server_memory_limit` of data for viewers that connect late; static data is
@@ -19,6 +21,7 @@ Ctrl-C still stops the dashboard while the swarm is not up.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import queue
@@ -34,7 +37,7 @@ from urllib.parse import quote
 
 import rerun as rr
 import zenoh
-from pydantic import ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
@@ -53,6 +56,7 @@ from swarm_config.credentials import (
     CredentialsFile,
     check_identity,
 )
+from swarm_config.faults import RunEvent
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario
 from swarm_config.settings import LayeredSettings
 
@@ -60,6 +64,8 @@ log = logging.getLogger("swarm.dashboard")
 
 APPLICATION_ID = "swarm-cps"
 RECORDING_FILE = "dashboard.rrd"
+EVENTS_FILE = "events.jsonl"
+"""The world's record of the run's events, one `RunEvent` JSON per line, in the run directory."""
 LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "::1", "[::1]"})
 
 
@@ -164,9 +170,31 @@ def _number_problem(value: object) -> str | None:
     return None
 
 
+def parse_run_event(payload: bytes | str) -> RunEvent | str:
+    """A run event (fields it does not know are ignored, like every reader's), or why it is
+    rejected: `not_json`, `does_not_fit`."""
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return MessageDropReason.NOT_JSON.value
+    if not isinstance(data, dict):
+        return MessageDropReason.DOES_NOT_FIT.value
+    try:
+        return RunEvent.model_validate(
+            {k: v for k, v in data.items() if k in RunEvent.model_fields}
+        )
+    except ValidationError:
+        return MessageDropReason.DOES_NOT_FIT.value
+
+
+def event_identity(event: RunEvent) -> str:
+    """The same event, read from events.jsonl or heard live, gives the same string."""
+    return event.model_dump_json()
+
+
 @dataclass(frozen=True)
 class _Sample:
-    kind: Literal["truth", "telemetry", "liveliness"]
+    kind: Literal["truth", "telemetry", "event", "liveliness"]
     key: str
     payload: bytes
     alive: bool = True
@@ -187,7 +215,8 @@ class DashboardService:
         self._session: zenoh.Session | None = None
         self._connect_error: BaseException | None = None
         self._connected = threading.Event()
-        self.counts = {"truth": 0, "telemetry": 0, "liveliness": 0, "rejected": 0}
+        self.counts = {"truth": 0, "telemetry": 0, "event": 0, "liveliness": 0, "rejected": 0}
+        self._events_seen: set[str] = set()
         self.rejected: Counter[str] = Counter()
         """Rejected samples per reason: `not_json`, `does_not_fit` (MessageDropReason),
         `non_finite`, `out_of_range` (a number no producer sends), `missing_robots` (a truth
@@ -208,6 +237,9 @@ class DashboardService:
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
         self._offer(_Sample("telemetry", str(sample.key_expr), sample.payload.to_bytes()))
+
+    def _on_event(self, sample: zenoh.Sample) -> None:
+        self._offer(_Sample("event", str(sample.key_expr), sample.payload.to_bytes()))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         alive = sample.kind == zenoh.SampleKind.PUT
@@ -281,15 +313,56 @@ class DashboardService:
             log.info("%s %s %s", role, name, "joined" if sample.alive else "left")
             self._log(recording, self.scene.on_liveliness(role, name, sample.alive))
             return
-        update = self.update_for(sample.kind, sample.payload)
+        if sample.kind == "event":
+            update = self.event_update(sample.payload)
+        else:
+            update = self.update_for(sample.kind, sample.payload)
         if isinstance(update, str):
             self.counts["rejected"] += 1
             self.rejected[update] += 1
             if self.counts["rejected"] == 1:
                 log.warning("ignoring a %s sample on %s: %s", sample.kind, sample.key, update)
             return
+        if update is None:  # an event logged already
+            return
         self.counts[sample.kind] += 1
         self._log(recording, update)
+
+    def events_from_file(self) -> list[Update]:
+        """The records of every run event already in `<out>/events.jsonl` (none without an
+        out directory or a file); a line that is not an event is counted as rejected."""
+        if self.config.out_dir is None:
+            return []
+        try:
+            lines = (self.config.out_dir / EVENTS_FILE).read_bytes().splitlines()
+        except OSError:
+            return []
+        updates: list[Update] = []
+        for line in lines:
+            if not line.strip():
+                continue
+            update = self.event_update(line)
+            if isinstance(update, str):
+                self.counts["rejected"] += 1
+                self.rejected[update] += 1
+            elif update is not None:
+                self.counts["event"] += 1
+                updates.append(update)
+        return updates
+
+    def event_update(self, payload: bytes) -> Update | str | None:
+        """The records one run event makes, why it is rejected (a reason of `rejected`), or
+        None when the same event was logged already.  Nothing is logged here."""
+        event = parse_run_event(payload)
+        if isinstance(event, str):
+            return event
+        if (problem := _number_problem(event.model_dump())) is not None:
+            return problem
+        identity = event_identity(event)
+        if identity in self._events_seen:
+            return None
+        self._events_seen.add(identity)
+        return self.scene.on_event(event)
 
     def update_for(self, kind: Literal["truth", "telemetry"], payload: bytes) -> Update | str:
         """The records one truth or telemetry sample makes, or why it is rejected (a reason
@@ -336,6 +409,8 @@ class DashboardService:
                     log.info(
                         "subscribed to swarm %s via %s", self.config.swarm, self.config.connect
                     )
+                    for update in self.events_from_file():
+                        self._log(recording, update)
                 try:
                     sample = self._inbox.get(timeout=0.1)
                 except queue.Empty:
@@ -349,9 +424,11 @@ class DashboardService:
             recording.flush(timeout_sec=10.0)
             recording.disconnect()
         log.info(
-            "stopped: %d truth, %d telemetry, %d liveliness samples, %d rejected %s, %d dropped",
+            "stopped: %d truth, %d telemetry, %d event, %d liveliness samples, %d rejected %s, "
+            "%d dropped",
             self.counts["truth"],
             self.counts["telemetry"],
+            self.counts["event"],
             self.counts["liveliness"],
             self.counts["rejected"],
             dict(self.rejected),

@@ -6,6 +6,10 @@ radio counters for a windowed delivery ratio). Each `on_*` method takes one mess
 the records to log, stamped with the message's simulated time. Archetypes are only built here,
 never logged: nothing opens a socket or reads a clock, so a test can feed hand-made messages.
 
+Run events (swarm_config/faults.py `RunEvent`: faults injected or refused, robots down and up,
+leader changes, world resumed) become a line of the event log and a marker on their kind's row
+of the fault timeline, at the simulation time the world stamped them with (`on_event`).
+
 Errors are the metrics of DESIGN.md §8 computed with `world.metrics` (`reference_points`,
 `sample_errors`): the leader against the trajectory (paper Fig. 12), each follower against its
 slot placed by eq. 17 from the leader's *true* pose (Fig. 13).
@@ -13,17 +17,20 @@ slot placed by eq. 17 from the leader's *true* pose (Fig. 13).
 
 from __future__ import annotations
 
+import json
 import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 import rerun as rr
+from pydantic import ValidationError
 
 from robot_firmware.net.messages import TelemetryMessage, TruthMessage
 from services.dashboard import entities
+from swarm_config.faults import FAULT_ADAPTER, EventKind, NetFault, RunEvent, fault_subjects
 from swarm_config.scenario import Scenario
 from world.metrics import FormationLayout, reference_points, sample_errors
 
@@ -49,6 +56,31 @@ RADIO_COLOURS: tuple[Rgb, Rgb] = ((68, 68, 68), (0, 114, 178))
 
 AXES = ("x", "y", "θ")
 
+EVENT_KINDS: tuple[str, ...] = get_args(EventKind)
+EVENT_ROWS: dict[str, int] = {
+    kind: len(EVENT_KINDS) - 1 - row for row, kind in enumerate(EVENT_KINDS)
+}
+"""The row of each kind on the fault timeline, the first kind on top."""
+
+
+@dataclass(frozen=True)
+class EventStyle:
+    colour: Rgb
+    marker: rr.components.MarkerShape
+    level: str
+    """The TextLog level of its line."""
+
+
+EVENT_STYLES: dict[str, EventStyle] = {
+    "fault_injected": EventStyle((213, 94, 0), rr.components.MarkerShape.Diamond, "WARN"),
+    "fault_refused": EventStyle((120, 120, 120), rr.components.MarkerShape.Cross, "WARN"),
+    "robot_down": EventStyle((204, 121, 167), rr.components.MarkerShape.Down, "WARN"),
+    "robot_up": EventStyle((0, 158, 115), rr.components.MarkerShape.Up, "INFO"),
+    "leader_change": EventStyle((0, 114, 178), rr.components.MarkerShape.Asterisk, "WARN"),
+    "world_resumed": EventStyle((230, 159, 0), rr.components.MarkerShape.Square, "INFO"),
+}
+_DEFAULT_EVENT_STYLE = EventStyle((40, 40, 40), rr.components.MarkerShape.Circle, "INFO")
+
 # Layers of the map, bottom to top.
 _DRAW_INFLUENCE = 1.0
 _DRAW_OBSTACLE = 2.0
@@ -62,6 +94,39 @@ _DRAW_ESTIMATE = 8.0
 _DRAW_REFERENCE = 9.0
 
 MAX_PATH_POINTS = 4000
+
+
+def describe_fault(data: object) -> str:
+    """`pwm_stuck robot2 wheel=0 duty=0.5`: a fault's name, whom it hits and its settings."""
+    try:
+        fault = FAULT_ADAPTER.validate_python(data)
+    except ValidationError:
+        return json.dumps(data, sort_keys=True, separators=(",", ":"))
+    settings = fault.model_dump(exclude_none=True, exclude={"fault", "process", "robot", "robots"})
+    if isinstance(fault, NetFault) and fault.link is not None:
+        settings.pop("link")
+    parts = [fault.fault, *fault_subjects(fault)]
+    parts += [f"{key}={_setting(value)}" for key, value in settings.items()]
+    return " ".join(parts)
+
+
+def _setting(value: object) -> str:
+    return (
+        json.dumps(value, separators=(",", ":")) if isinstance(value, dict | list) else str(value)
+    )
+
+
+def describe_event(event: RunEvent) -> str:
+    """One line for the event log: `fault_injected kill robot1 source=schedule`,
+    `robot_down robot2`, `leader_change robot2 from=robot1 term=1`, ..."""
+    detail = dict(event.detail)
+    words: list[str] = [event.kind]
+    if event.kind in ("fault_injected", "fault_refused") and "fault" in detail:
+        words.append(describe_fault(detail.pop("fault")))
+    if event.subject is not None and event.subject not in " ".join(words).split():
+        words.append(event.subject)
+    words += [f"{key}={_setting(value)}" for key, value in sorted(detail.items())]
+    return " ".join(words)
 
 
 def shade(colour: Rgb, factor: float) -> Rgb:
@@ -235,6 +300,20 @@ class SwarmScene:
                 static=True,
             ),
         ]
+        for kind in EVENT_KINDS:
+            style = EVENT_STYLES.get(kind, _DEFAULT_EVENT_STYLE)
+            records.append(
+                record(
+                    entities.event_marker(kind),
+                    rr.SeriesPoints(
+                        colors=[style.colour],
+                        markers=[style.marker],
+                        names=[kind.replace("_", " ")],
+                        marker_sizes=[6.0],
+                    ),
+                    static=True,
+                )
+            )
         if len(radii):
             records += [
                 record(
@@ -457,6 +536,22 @@ class SwarmScene:
             ),
             rr.Points2D(list(echoes_m), radii=[0.02], colors=[colour], draw_order=_DRAW_SONAR),
         )
+
+    def on_event(self, event: RunEvent) -> Update:
+        """A run event of the world: a line of the event log and a marker on its kind's row of
+        the fault timeline, at the event's own simulation time."""
+        style = EVENT_STYLES.get(event.kind, _DEFAULT_EVENT_STYLE)
+        records = [
+            record(
+                entities.EVENTS,
+                rr.TextLog(f"t={event.t_s:.2f} s {describe_event(event)}", level=style.level),
+            ),
+            record(
+                entities.event_marker(event.kind),
+                rr.Scalars([float(EVENT_ROWS.get(event.kind, -1))]),
+            ),
+        ]
+        return Update(event.t_s, records)
 
     def on_liveliness(self, role: str, name: str, alive: bool) -> Update:
         """A process joined or left (its liveliness token); stamped at the newest sim time."""
