@@ -21,6 +21,11 @@ election (robot_firmware/leadership.py) that the peer is gone, without waiting f
 to go stale; changes are queued by the callback and handed over at the next tick.
 Telemetry (estimate, desired pose, gains, fuzzy output, counters, loop timing) is published at
 its own rate.
+The admin verb `fault` injects one register fault into the robot's FPGA model
+(robot_firmware/fpga/faults.py), between ticks like every admin query; a forced watchdog expiry
+lands after the firmware's tick, before the act message, and `tick_slow` makes every control
+tick sleep its extra milliseconds before the act message leaves, as an overloaded CPU would
+(a sleep, not a busy wait: the other robots of the host have CPUs of their own on a real swarm).
 """
 
 from __future__ import annotations
@@ -58,8 +63,10 @@ from robot_firmware.net.messages import (
     AdminRefusal,
     LoopTimingReport,
     ParamsReply,
+    RegisterFaultsReply,
     RobotStatusReply,
     TelemetryMessage,
+    refusal_of,
 )
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from robot_firmware.net.wire import (
@@ -73,6 +80,7 @@ from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
 from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler, Wait
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, CredentialsFile
+from swarm_config.faults import FAULT_ADAPTER, REGISTER_FAULT_ADAPTER
 from swarm_config.scenario import load_fuzzy_parameters, load_scenario
 from swarm_config.settings import LayeredSettings, describe_validation_error
 
@@ -302,6 +310,10 @@ class RobotProcess:
             self.firmware.receive(self._frames.popleft(), now_ns)
         report = self.firmware.control_tick(now_ns)
         self.last_report = report
+        faults = self.fabric.faults
+        faults.land_pending()
+        if faults.tick_extra_s:
+            time.sleep(faults.tick_extra_s)  # tick_slow: the overloaded CPU finishes late
         frames_sent = 0
         if report.frame is not None:
             tx_pub.put(report.frame)
@@ -321,6 +333,7 @@ class RobotProcess:
         now_ns = decision.sim_time_ns
         self._advance_fabric_to(now_ns)
         self.firmware.safe_stop()
+        self.fabric.faults.land_pending()
         self._publish_act(0, 0, act_pub)
         self._publish_telemetry(now_ns, telemetry_pub)
 
@@ -386,6 +399,7 @@ class RobotProcess:
                 float(g) if np.isfinite(g) else None for g in self.firmware.sonar_gap_m
             ),
             "sonar_echoes_m": tuple(self.firmware.sonar_echo_points_m()),
+            "register_faults": self.fabric.faults.labels,
         }
         if report is not None:
             o = report.outputs
@@ -436,11 +450,48 @@ class RobotProcess:
         )
         return ParamsReply(rule_count=len(parameters.error_centres) * len(parameters.rate_centres))
 
+    def _fault_request(self, payload: bytes) -> RegisterFaultsReply | AdminError:
+        """Inject one register fault (a `swarm_config.faults` register fault as JSON) into this
+        robot's FPGA model, or with an empty body list the active ones.  A malformed fault, one
+        of another kind or one naming another robot is refused and changes nothing."""
+        faults = self.fabric.faults
+        name = self.config.name
+        if payload:
+            try:
+                fault = REGISTER_FAULT_ADAPTER.validate_json(payload)
+            except ValidationError as exc:
+                return self._fault_refusal(payload, exc)
+            if fault.robot != name:
+                return AdminError(
+                    error=f"fault refused: it names robot {fault.robot!r}; this is {name!r}",
+                    reason=AdminRefusal.UNKNOWN_ROBOT,
+                )
+            faults.apply(fault)
+            log.warning("register fault %s", fault.model_dump_json())
+        return RegisterFaultsReply(robot=name, active=faults.active)
+
+    @staticmethod
+    def _fault_refusal(payload: bytes, exc: ValidationError) -> AdminError:
+        try:
+            other = FAULT_ADAPTER.validate_json(payload)
+        except ValidationError:
+            return AdminError(
+                error=describe_validation_error("fault refused", exc), reason=refusal_of(exc)
+            )
+        return AdminError(
+            error=(
+                f"fault refused: {other.fault!r} is a {other.kind} fault; a robot takes register "
+                "faults only (send the others to the world's fault verb)"
+            ),
+            reason=AdminRefusal.INVALID_REQUEST,
+        )
+
     def admin_handlers(self) -> dict[str, Handler]:
         """The robot's admin verbs, served between control ticks."""
         return {
             "regs": lambda body: handle_regs_request(self.fabric.bus, body),
             "params": self._params_request,
+            "fault": self._fault_request,
             "status": lambda _body: RobotStatusReply(
                 **self._telemetry_fields(self._sim_time_ns(time.monotonic_ns()))
             ),

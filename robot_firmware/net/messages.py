@@ -11,6 +11,8 @@ JSON ones are here:
 | `admin/<robot>/status`                | robot     | `RobotStatusReply`                     |
 | `admin/<robot>/regs`                  | robot     | `RegsRequest` -> `RegsReply`           |
 | `admin/<robot>/params`                | robot     | fuzzy parameter file -> `ParamsReply`  |
+| `admin/<robot>/fault`                 | robot     | one register fault (or nothing) ->     |
+|                                       |           | `RegisterFaultsReply`                  |
 | `admin/world/status`                  | world     | `WorldStatusReply`                     |
 | `admin/world/net`                     | world     | `NetProfileRequest` or a partial       |
 |                                       |           | `LinkProfile` -> `NetReply`            |
@@ -34,6 +36,7 @@ from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from swarm_config.faults import RegisterFault
 from swarm_config.radio import LinkProfile
 
 Pose = tuple[float, float, float]
@@ -142,6 +145,9 @@ class TelemetryMessage(Message):
     repulsion_mps: tuple[float, float] | None = None
     wheel_speed_radps: tuple[float, float, float, float] | None = None
     active: bool | None = None
+    register_faults: tuple[str, ...] = ()
+    """The register faults active in the robot's FPGA model, each as `name(field=value, ...)`
+    (robot_firmware/fpga/faults.py `fault_label`)."""
 
 
 # -- world -> viewers ---------------------------------------------------------------------------
@@ -277,6 +283,14 @@ class ParamsReply(AdminOk):
     rule_count: int | None = None
 
 
+class RegisterFaultsReply(AdminOk):
+    """`admin/<robot>/fault`: the register faults active in the robot's FPGA model after the
+    request (oldest first; an empty request only lists them)."""
+
+    robot: str
+    active: tuple[Annotated[RegisterFault, Field(discriminator="fault")], ...] = ()
+
+
 # -- admin: world -------------------------------------------------------------------------------
 
 
@@ -394,6 +408,7 @@ AdminReply = (
     | RegsDumpReply
     | RegsAccessReply
     | ParamsReply
+    | RegisterFaultsReply
     | WorldStatusReply
     | NetReply
     | LauncherStatusReply
