@@ -403,8 +403,11 @@ def _cmd_restart(args: argparse.Namespace) -> int:
 
 
 def _cmd_fault(args: argparse.Namespace) -> int:
-    """Send one fault to the world's `fault` verb; a process fault the world does not answer
-    (it is down or frozen, or it is the fault's own target) goes to the launcher directly."""
+    """Send one fault to the world's `fault` verb, the entry point of every fault: the world
+    applies it at a tick boundary and records it.  A world that does not answer its `status`
+    (it is down or frozen) cannot: a process fault then goes to the launcher directly, with no
+    world to record it.  A fault the world takes on itself (kill, stop, restart of `world`) is
+    recorded before the world goes and gets no answer: the launcher's status is shown instead."""
     from robot_firmware.net.messages import ProcessRequest
     from services.cli.faults import FaultArgumentError, fault_from_args, fault_json
     from swarm_config.faults import fault_subjects
@@ -417,17 +420,26 @@ def _cmd_fault(args: argparse.Namespace) -> int:
     if args.dry_run:
         print(body.decode())
         return 0
-    payload = _ask_if_answered(args, "world", "fault", body)
-    if payload is None and fault.kind != "process":
-        raise _no_answer(args, "world")
-    if payload is None:
+    if _ask_if_answered(args, "world", "status", None) is None:
+        if fault.kind != "process":
+            raise _no_answer(args, "world")
         process = fault_subjects(fault)[0]
         print(
-            f"swarm fault: no answer from the world; asking the launcher to {fault.fault} "
-            f"{process} (not recorded in events.jsonl unless the world sees it)",
+            f"swarm fault: the world does not answer (down or frozen); asking the launcher to "
+            f"{fault.fault} {process} directly (no world records it in events.jsonl)",
             file=sys.stderr,
         )
-        payload = _ask(args, "launcher", fault.fault, ProcessRequest(process=process))
+        return _print_reply(_ask(args, "launcher", fault.fault, ProcessRequest(process=process)))
+    payload = _ask_if_answered(args, "world", "fault", body)
+    if payload is None and fault.kind == "process" and fault_subjects(fault) == ("world",):
+        print(
+            f"swarm fault: the world took `{fault.fault}` on itself and gave no answer (it "
+            "recorded the fault first); the launcher's status:",
+            file=sys.stderr,
+        )
+        return _print_reply(_ask(args, "launcher", "status", None))
+    if payload is None:
+        raise _no_answer(args, "world")
     return _print_reply(payload)
 
 

@@ -224,8 +224,8 @@ class _Admin:
         credentials: object = None,
     ) -> bytes | None:
         payload = body.model_dump_json().encode() if hasattr(body, "model_dump_json") else body
-        assert isinstance(payload, bytes)
-        self.asked.append((target, verb, payload))
+        assert payload is None or isinstance(payload, bytes)
+        self.asked.append((target, verb, payload or b""))
         return self.answers.get((target, verb))
 
 
@@ -243,17 +243,18 @@ def _install(monkeypatch: pytest.MonkeyPatch, admin: _Admin) -> None:
 
 
 WORLD_REPLY = b'{"ok": true, "event": {"t_s": 1.0, "kind": "fault_injected"}}'
+WORLD_STATUS = b'{"ok": true, "t_s": 1.0}'
 
 
 def test_the_fault_goes_to_the_worlds_fault_verb_as_its_json(
     operator: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    admin = _Admin({("world", "fault"): WORLD_REPLY})
+    admin = _Admin({("world", "status"): WORLD_STATUS, ("world", "fault"): WORLD_REPLY})
     _install(monkeypatch, admin)
     code = cli.main(["fault", "pwm-stuck", "robot2", "--wheel", "0", "--duty", "0.5"])
     assert code == 0
-    ((target, verb, body),) = admin.asked
-    assert (target, verb) == ("world", "fault")
+    status, (target, verb, body) = admin.asked
+    assert status[:2] == ("world", "status") and (target, verb) == ("world", "fault")
     assert FAULT_ADAPTER.validate_json(body) == PwmStuckFault(
         fault="pwm_stuck", robot="robot2", wheel=0, duty=0.5
     )
@@ -264,7 +265,7 @@ def test_a_refusal_of_the_world_exits_with_status_1(
     operator: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     refusal = b'{"ok": false, "error": "no robot robot9", "reason": "unknown_robot"}'
-    _install(monkeypatch, _Admin({("world", "fault"): refusal}))
+    _install(monkeypatch, _Admin({("world", "status"): WORLD_STATUS, ("world", "fault"): refusal}))
     assert cli.main(["fault", "fix-cut", "robot9"]) == 1
 
 
@@ -282,7 +283,7 @@ def test_bad_input_exits_with_status_2_and_sends_nothing(
     capsys: pytest.CaptureFixture[str],
     argv: list[str],
 ) -> None:
-    admin = _Admin({("world", "fault"): WORLD_REPLY})
+    admin = _Admin({("world", "status"): WORLD_STATUS, ("world", "fault"): WORLD_REPLY})
     _install(monkeypatch, admin)
     assert cli.main(["fault", *argv]) == cli.EXIT_USAGE
     assert admin.asked == []
@@ -290,22 +291,49 @@ def test_bad_input_exits_with_status_2_and_sends_nothing(
     assert error.startswith("swarm fault: invalid fault:") and "Traceback" not in error
 
 
-def test_a_process_fault_the_world_does_not_answer_goes_to_the_launcher(
+def test_a_process_fault_goes_to_the_launcher_when_the_world_does_not_answer(
     operator: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    admin = _Admin(
-        {("world", "fault"): None, ("launcher", "cont"): b'{"ok": true, "continued": true}'}
-    )
+    admin = _Admin({("launcher", "cont"): b'{"ok": true, "continued": true}'})
     _install(monkeypatch, admin)
     assert cli.main(["fault", "cont", "world"]) == 0
     assert [(target, verb) for target, verb, _ in admin.asked] == [
-        ("world", "fault"),
+        ("world", "status"),
         ("launcher", "cont"),
     ]
     assert ProcessRequest.model_validate_json(admin.asked[1][2]) == ProcessRequest(process="world")
     captured = capsys.readouterr()
-    assert "no answer from the world" in captured.err
+    assert "the world does not answer" in captured.err
     assert json.loads(captured.out) == {"ok": True, "continued": True}
+
+
+def test_a_fault_the_world_takes_on_itself_shows_the_launchers_status(
+    operator: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    status = b'{"ok": true, "processes": {}}'
+    admin = _Admin({("world", "status"): WORLD_STATUS, ("launcher", "status"): status})
+    _install(monkeypatch, admin)
+    assert cli.main(["fault", "restart", "world"]) == 0
+    # Sent once, to the world: never again to the launcher, which would restart it twice.
+    assert [(target, verb) for target, verb, _ in admin.asked] == [
+        ("world", "status"),
+        ("world", "fault"),
+        ("launcher", "status"),
+    ]
+    assert "took `restart` on itself" in capsys.readouterr().err
+
+
+def test_a_robot_fault_the_world_does_not_answer_is_not_sent_elsewhere(
+    operator: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    admin = _Admin({("world", "status"): WORLD_STATUS})
+    _install(monkeypatch, admin)
+    assert cli.main(["fault", "kill", "robot2"]) == cli.EXIT_USAGE
+    assert [(target, verb) for target, verb, _ in admin.asked] == [
+        ("world", "status"),
+        ("world", "fault"),
+    ]
+    assert "no answer from world" in capsys.readouterr().err
 
 
 def test_another_fault_nobody_answers_is_a_clear_error(
@@ -314,7 +342,7 @@ def test_another_fault_nobody_answers_is_a_clear_error(
     admin = _Admin({})
     _install(monkeypatch, admin)
     assert cli.main(["fault", "heal", "--timeout", "0.1"]) == cli.EXIT_USAGE
-    assert [(target, verb) for target, verb, _ in admin.asked] == [("world", "fault")]
+    assert [(target, verb) for target, verb, _ in admin.asked] == [("world", "status")]
     assert "no answer from world" in capsys.readouterr().err
 
 
