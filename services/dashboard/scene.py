@@ -123,7 +123,8 @@ def describe_event(event: RunEvent) -> str:
     words: list[str] = [event.kind]
     if event.kind in ("fault_injected", "fault_refused") and "fault" in detail:
         words.append(describe_fault(detail.pop("fault")))
-    if event.subject is not None and event.subject not in " ".join(words).split():
+    named = " ".join(words).split()
+    if event.subject is not None and not all(p in named for p in event.subject.split(",")):
         words.append(event.subject)
     words += [f"{key}={_setting(value)}" for key, value in sorted(detail.items())]
     return " ".join(words)

@@ -125,6 +125,7 @@ def test_every_kind_has_its_own_row_and_style(scenario: Scenario) -> None:
             RunEvent(
                 t_s=1.0,
                 kind="fault_injected",
+                subject="robot1,robot3",
                 detail={"fault": {"fault": "net", "link": ["robot1", "robot3"], "loss": 0.3}},
             ),
             "fault_injected net robot1 robot3 loss=0.3",
