@@ -407,7 +407,8 @@ def _cmd_fault(args: argparse.Namespace) -> int:
     applies it at a tick boundary and records it.  A world that does not answer its `status`
     (it is down or frozen) cannot: a process fault then goes to the launcher directly, with no
     world to record it.  A fault the world takes on itself (kill, stop, restart of `world`) is
-    recorded before the world goes and gets no answer: the launcher's status is shown instead."""
+    recorded before the world goes, and the answer to one on the router goes down with it: for
+    those, no answer is what success looks like, and the launcher's status is shown instead."""
     from robot_firmware.net.messages import ProcessRequest
     from services.cli.faults import FaultArgumentError, fault_from_args, fault_json
     from swarm_config.faults import fault_subjects
@@ -431,10 +432,17 @@ def _cmd_fault(args: argparse.Namespace) -> int:
         )
         return _print_reply(_ask(args, "launcher", fault.fault, ProcessRequest(process=process)))
     payload = _ask_if_answered(args, "world", "fault", body)
-    if payload is None and fault.kind == "process" and fault_subjects(fault) == ("world",):
+    if payload is None and fault.kind == "process" and fault_subjects(fault)[0] == "world":
         print(
             f"swarm fault: the world took `{fault.fault}` on itself and gave no answer (it "
             "recorded the fault first); the launcher's status:",
+            file=sys.stderr,
+        )
+        return _print_reply(_ask(args, "launcher", "status", None))
+    if payload is None and fault.kind == "process" and fault_subjects(fault)[0] == "router":
+        print(
+            f"swarm fault: no answer through the router after `{fault.fault} router` (the "
+            "answer went down with it); the launcher's status:",
             file=sys.stderr,
         )
         return _print_reply(_ask(args, "launcher", "status", None))

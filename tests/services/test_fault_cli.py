@@ -307,20 +307,27 @@ def test_a_process_fault_goes_to_the_launcher_when_the_world_does_not_answer(
     assert json.loads(captured.out) == {"ok": True, "continued": True}
 
 
-def test_a_fault_the_world_takes_on_itself_shows_the_launchers_status(
-    operator: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("process", "said"), [("world", "took `restart` on itself"), ("router", "went down with it")]
+)
+def test_a_restart_of_the_world_or_router_unanswered_shows_the_launchers_status(
+    operator: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    process: str,
+    said: str,
 ) -> None:
     status = b'{"ok": true, "processes": {}}'
     admin = _Admin({("world", "status"): WORLD_STATUS, ("launcher", "status"): status})
     _install(monkeypatch, admin)
-    assert cli.main(["fault", "restart", "world"]) == 0
+    assert cli.main(["fault", "restart", process]) == 0
     # Sent once, to the world: never again to the launcher, which would restart it twice.
     assert [(target, verb) for target, verb, _ in admin.asked] == [
         ("world", "status"),
         ("world", "fault"),
         ("launcher", "status"),
     ]
-    assert "took `restart` on itself" in capsys.readouterr().err
+    assert said in capsys.readouterr().err
 
 
 def test_a_robot_fault_the_world_does_not_answer_is_not_sent_elsewhere(
