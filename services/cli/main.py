@@ -45,6 +45,8 @@ from swarm_config.tls import (
 )
 
 EXIT_USAGE = 2
+ROUTER_BACK_WITHIN_S = 20.0
+"""How long `swarm fault kill|restart router` waits for the launcher behind the new router."""
 
 
 class UsageError(Exception):
@@ -445,7 +447,13 @@ def _cmd_fault(args: argparse.Namespace) -> int:
             "answer went down with it); the launcher's status:",
             file=sys.stderr,
         )
-        return _print_reply(_ask(args, "launcher", "status", None))
+        # The launcher answers again once it has reconnected to the new router.
+        deadline_s = time.monotonic() + ROUTER_BACK_WITHIN_S
+        while (status := _ask_if_answered(args, "launcher", "status", None)) is None:
+            if time.monotonic() > deadline_s:
+                raise _no_answer(args, "launcher")
+            time.sleep(0.5)
+        return _print_reply(status)
     if payload is None:
         raise _no_answer(args, "world")
     return _print_reply(payload)
