@@ -1,0 +1,321 @@
+"""Real-time starvation guard: simulated time never runs ahead of a robot the host starved.
+
+A pure state machine (no Zenoh, no threads, time only as an argument), like the lockstep
+barrier next door (world/lockstep.py); the world process (`world/runtime.py`, real-time loop)
+feeds it what arrives and asks it what time it is.  DESIGN.md §7.1 ("Real-time factor") and
+docs/robustness.md ("CPU starvation") say why.
+
+**What a robot has answered.**  The world publishes sense tick k at simulation time
+T(k) = T(k0) + (k - k0)·P (P the control period).  A real-time robot's act message carries the
+tick of the newest sense message it had applied when it ran that control tick
+(robot_firmware/tick_scheduler.py): a robot that answered tick a has acted on its pins at T(a),
+for the control period [T(a), T(a + 1)).
+
+**The rule.**  The world's simulated time never passes T(a_min + 1) + P, where a_min is the
+oldest answer among the robots it waits for: at most one control period beyond the end of the
+period the slowest robot has answered.  (A lead of zero would hold the world every period for
+a robot whose tick falls late in the period; one period of lead is the jitter a robot on an
+unloaded host needs, and a starved one exceeds.)
+
+**The clock.**  Simulated time is the wall clock minus an offset, capped at that horizon:
+`t_sim = min(mono - offset, horizon)`.  While the cap binds (the world is *held*), the offset
+grows with the wall clock, so when the slow robot answers the run carries on from where it was
+held: it slows down (real-time factor < 1) and never races to catch up.
+
+**Seats** (one per robot):
+
+| event                      | seat after it                                                  |
+|----------------------------|----------------------------------------------------------------|
+| `join` (token appears)     | live, lapsed: not waited for until its first answer that has    |
+|                            | caught up                                                       |
+| `leave` (token gone)       | not live: never waited for                                      |
+| `exempt(on)`               | not waited for while on (a deliberate overload: `tick_slow`)    |
+| `answer(tick)`             | answered = max(answered, tick), for a tick this world has       |
+|                            | published (an answer to a tick it has not is another world's)   |
+| caught up (lapsed seat     | waited for again: T(answered + 1) + P >= the world's time       |
+|  whose answer is recent)   |                                                                 |
+| held the world for longer  | lapsed: not waited for, and its body braked, until it catches  |
+|  than `hold_limit_ns`      | up                                                              |
+
+A frozen or dead robot therefore holds the world for at most `hold_limit_ns` of wall time
+(the world's setting is at most the robots' liveliness lease, 1 s): a dead one until its token
+goes (milliseconds after a kill), a frozen one until the limit or its lease, whichever is
+first.  With the guard off, no seat is ever waited for and the clock is the plain wall clock.
+
+**Real-time factor.**  `RealTimeFactorWindow` gives simulated seconds per wall second over the
+last few wall seconds (the dashboard's live figure); the world's `real_time_factor` is the same
+ratio since time started.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+NS_PER_S = 1_000_000_000
+LEAD_PERIODS = 1
+"""How many control periods simulated time may run beyond the slowest robot's answered one."""
+
+
+@dataclass
+class GuardSeat:
+    """One robot's place in the guard (the table in the module docstring)."""
+
+    live: bool = False
+    lapsed: bool = True
+    exempt: bool = False
+    answered: int | None = None
+    blocked_since_mono_ns: int | None = None
+    """When this robot started holding the world (None: it does not hold it now)."""
+    held_ns: int = 0
+    """Wall time the world spent held for this robot."""
+    lapses: int = 0
+
+    @property
+    def waited_for(self) -> bool:
+        return self.live and not self.exempt and not self.lapsed and self.answered is not None
+
+
+@dataclass(frozen=True)
+class GuardStats:
+    """What the guard did, for summary.json."""
+
+    enabled: bool
+    lead_periods: int
+    hold_limit_s: float
+    held_s: float
+    """Wall time during which simulated time stood still, waiting for a robot."""
+    holds: int
+    longest_hold_s: float
+    held_for_s: dict[str, float]
+    """Per robot: wall time the world was held for it (holds for two robots count for both)."""
+    lapses: dict[str, int]
+    """Per robot: how often it held the world past the limit and was no longer waited for."""
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "enabled": self.enabled,
+            "lead_periods": self.lead_periods,
+            "hold_limit_s": self.hold_limit_s,
+            "held_s": round(self.held_s, 6),
+            "holds": self.holds,
+            "longest_hold_s": round(self.longest_hold_s, 6),
+            "held_for_s": {name: round(s, 6) for name, s in self.held_for_s.items()},
+            "lapses": dict(self.lapses),
+        }
+
+
+class RealTimeGuard:
+    """The real-time world's clock, held back for starved robots (module docstring)."""
+
+    def __init__(
+        self,
+        names: Sequence[str],
+        period_ns: int,
+        hold_limit_ns: int,
+        enabled: bool = True,
+        lead_periods: int = LEAD_PERIODS,
+    ) -> None:
+        if period_ns <= 0 or hold_limit_ns <= 0 or lead_periods < 0:
+            raise ValueError(
+                f"period and hold limit must be positive and the lead not negative: "
+                f"{period_ns}, {hold_limit_ns}, {lead_periods}"
+            )
+        self.names = tuple(names)
+        self.period_ns = period_ns
+        self.hold_limit_ns = hold_limit_ns
+        self.enabled = enabled
+        self.lead_periods = lead_periods
+        self.seats = {name: GuardSeat() for name in self.names}
+        self._tick0 = 0
+        self._tick0_ns = 0
+        self._offset_ns = 0
+        self._sim_ns = 0
+        self._last_mono_ns: int | None = None
+        self._published = -1
+        self._hold_started_mono_ns: int | None = None
+        self.holding = False
+        """Whether the last `sim_time_ns` found the world held."""
+        self.held_ns = 0
+        self.holds = 0
+        self.longest_hold_ns = 0
+
+    # -- the world's side ------------------------------------------------------------------
+
+    def start(self, tick: int, tick_time_ns: int, sim_ns: int, mono_ns: int) -> None:
+        """Time runs from simulation time `sim_ns` at wall time `mono_ns`; sense tick `tick`
+        is (or was) due at `tick_time_ns`."""
+        self._tick0, self._tick0_ns = tick, tick_time_ns
+        self._offset_ns = mono_ns - sim_ns
+        self._sim_ns = sim_ns
+        self._last_mono_ns = mono_ns
+        self._published = tick - 1
+
+    def published(self, tick: int) -> None:
+        """The world published sense tick `tick`."""
+        self._published = max(self._published, tick)
+
+    def tick_time_ns(self, tick: int) -> int:
+        return self._tick0_ns + (tick - self._tick0) * self.period_ns
+
+    def horizon_ns(self) -> int | None:
+        """How far simulated time may run now (None: no limit)."""
+        answers = [s.answered for s in self.seats.values() if s.waited_for]
+        if not self.enabled or not answers:
+            return None
+        return self._seat_horizon_ns(min(a for a in answers if a is not None))
+
+    def _seat_horizon_ns(self, answered: int) -> int:
+        return self.tick_time_ns(answered + 1 + self.lead_periods)
+
+    def sim_time_ns(self, mono_ns: int) -> int:
+        """The simulation time at wall time `mono_ns`: the wall clock, held back to the
+        horizon.  A robot that has held the world for longer than the hold limit is no longer
+        waited for.  An instant before the last one asked about gets the time it had then (or
+        the last time, if the clock was held since)."""
+        if self._last_mono_ns is not None and mono_ns < self._last_mono_ns:
+            return min(self._sim_ns, mono_ns - self._offset_ns)
+        self._last_mono_ns = mono_ns
+        self._readmit_caught_up()
+        wanted_ns = mono_ns - self._offset_ns
+        blockers = self._blockers(wanted_ns, mono_ns)
+        horizon = self.horizon_ns()
+        if horizon is None or wanted_ns <= horizon:
+            self.holding = False
+            self._sim_ns = max(self._sim_ns, wanted_ns)
+            return self._sim_ns
+        # Held: the wall time past the horizon is not simulated time; it moves the offset.
+        now_ns = max(horizon, self._sim_ns)
+        slip_ns = wanted_ns - now_ns
+        self._offset_ns += slip_ns
+        self.held_ns += slip_ns
+        for name in blockers:
+            self.seats[name].held_ns += slip_ns
+        if not self.holding:
+            self.holding = True
+            self.holds += 1
+            self._hold_started_mono_ns = mono_ns - slip_ns
+        assert self._hold_started_mono_ns is not None
+        self.longest_hold_ns = max(self.longest_hold_ns, mono_ns - self._hold_started_mono_ns)
+        self._sim_ns = now_ns
+        return now_ns
+
+    def _blockers(self, wanted_ns: int, mono_ns: int) -> list[str]:
+        """The waited-for robots that hold the world back from `wanted_ns` now (those whose
+        horizon binds, or lies behind the world's time); those that have done so for longer
+        than the hold limit lapse."""
+        horizons = {
+            name: self._seat_horizon_ns(seat.answered)
+            for name, seat in self.seats.items()
+            if self.enabled and seat.waited_for and seat.answered is not None
+        }
+        binding_ns = max(min(horizons.values(), default=wanted_ns), self._sim_ns)
+        blockers = []
+        for name, seat in self.seats.items():
+            horizon = horizons.get(name)
+            if horizon is None or horizon >= wanted_ns or horizon > binding_ns:
+                seat.blocked_since_mono_ns = None
+                continue
+            if seat.blocked_since_mono_ns is None:
+                seat.blocked_since_mono_ns = mono_ns
+            if mono_ns - seat.blocked_since_mono_ns > self.hold_limit_ns:
+                seat.lapsed = True
+                seat.lapses += 1
+                seat.blocked_since_mono_ns = None
+                continue
+            blockers.append(name)
+        return blockers
+
+    def _readmit_caught_up(self) -> None:
+        for seat in self.seats.values():
+            if (
+                seat.lapsed
+                and seat.live
+                and seat.answered is not None
+                and self._seat_horizon_ns(seat.answered) >= self._sim_ns
+            ):
+                seat.lapsed = False
+
+    # -- the robots' side ------------------------------------------------------------------
+
+    def join(self, name: str) -> None:
+        """The robot's token appeared: a clean seat, waited for once it answers in time."""
+        seat = self.seats[name]
+        self.seats[name] = GuardSeat(
+            live=True, exempt=seat.exempt, held_ns=seat.held_ns, lapses=seat.lapses
+        )
+
+    def leave(self, name: str) -> None:
+        seat = self.seats[name]
+        self.seats[name] = GuardSeat(
+            live=False, exempt=seat.exempt, held_ns=seat.held_ns, lapses=seat.lapses
+        )
+
+    def exempt(self, name: str, on: bool) -> None:
+        """A deliberate overload of this robot (`tick_slow`) is a fault to watch, not host
+        starvation to hide: while on, the world does not wait for it.  Off again, it is waited
+        for once it has caught up."""
+        seat = self.seats[name]
+        seat.exempt = on
+        seat.lapsed = True
+        seat.blocked_since_mono_ns = None
+
+    def exempt_if(self, name: str, on: bool) -> None:
+        """`exempt`, when that changes anything (the robot's telemetry says it every time)."""
+        if self.seats[name].exempt != on:
+            self.exempt(name, on)
+
+    def answer(self, name: str, tick: int) -> None:
+        """The robot's act message: it had applied sense tick `tick`."""
+        if tick > self._published:
+            return
+        seat = self.seats[name]
+        seat.answered = tick if seat.answered is None else max(seat.answered, tick)
+
+    # -- what the world reads --------------------------------------------------------------
+
+    def braked(self) -> frozenset[str]:
+        """Live robots the world has stopped waiting for because they held it too long (or
+        have not answered since they joined): their bodies are braked until they catch up."""
+        if not self.enabled:
+            return frozenset()
+        return frozenset(n for n, s in self.seats.items() if s.live and s.lapsed and not s.exempt)
+
+    def waited_for(self) -> frozenset[str]:
+        return frozenset(n for n, s in self.seats.items() if self.enabled and s.waited_for)
+
+    def stats(self) -> GuardStats:
+        return GuardStats(
+            enabled=self.enabled,
+            lead_periods=self.lead_periods,
+            hold_limit_s=self.hold_limit_ns / NS_PER_S,
+            held_s=self.held_ns / NS_PER_S,
+            holds=self.holds,
+            longest_hold_s=self.longest_hold_ns / NS_PER_S,
+            held_for_s={n: s.held_ns / NS_PER_S for n, s in self.seats.items()},
+            lapses={n: s.lapses for n, s in self.seats.items()},
+        )
+
+
+@dataclass
+class RealTimeFactorWindow:
+    """Simulated seconds per wall second over the last `span_s` of wall time."""
+
+    span_s: float = 5.0
+    samples: deque[tuple[float, float]] = field(default_factory=deque)
+
+    def add(self, wall_s: float, sim_s: float) -> float | None:
+        """Record that simulated time was `sim_s` at wall time `wall_s`; the factor over the
+        window (None until it spans some wall time, or after the simulated clock jumped back:
+        a restarted world)."""
+        samples = self.samples
+        if samples and sim_s < samples[-1][1]:
+            samples.clear()
+        samples.append((wall_s, sim_s))
+        while len(samples) > 1 and samples[1][0] <= wall_s - self.span_s:
+            samples.popleft()
+        wall0_s, sim0_s = samples[0]
+        if wall_s - wall0_s <= 0.0:
+            return None
+        return (sim_s - sim0_s) / (wall_s - wall0_s)
