@@ -8,17 +8,25 @@ arguments (monotonic nanoseconds), so every transition is tested without Zenoh o
 
 Two clock modes, chosen by the world's sense messages:
 
-* **real time**: a tick every control period on the monotonic clock.  The simulation time of a
-  tick is that of the newest sense message plus the monotonic time since it arrived, so frame
-  timestamps of different robots compare.  A tick that starts more than a period late, or ends
-  after its period, is a deadline miss; a loop that falls more than five periods behind starts
-  its deadlines afresh instead of running a burst of late ticks.
+* **real time**: a tick every control period of *simulation* time, when the world's sense
+  message for it has come: the loop follows the world's clock and never runs ahead of it, so
+  when the world runs slower than the wall clock (it holds its time for a starved robot,
+  world/realtime_guard.py) each tick still covers one period of the world's time, the fixed
+  step of the control law.  The simulation time of a tick is that of the newest sense message
+  plus the monotonic time since it arrived (at most one period).  The loop's deadlines are
+  grid points of simulation time one period apart, mapped to the monotonic clock by the newest
+  sense message: a tick that starts more than a period after its deadline, or ends more than
+  a period after it, is a deadline miss, and grid points that passed while a tick ran are
+  skipped (no burst of late ticks).  A real-time tick answers the tick number of the newest
+  sense message (the world's starvation guard reads it from the act message).  A sense message
+  that repeats the newest one (same tick and time: the world holds its time) only says that
+  the world is there.
   When no sense message has arrived for `sense_timeout_ns` (the world died, or this process
   was frozen), the scheduler stops controlling: every period it answers `SafeStop` instead of
   a tick, and the firmware holds the motors off and stops kicking the watchdog.  The first
   tick after sense messages come back (or after any gap in their arrival longer than the
   timeout) is marked `resumed`, so the firmware drops what went stale, and its deadlines
-  start afresh from the message's arrival.
+  start afresh from the message.
 * **lockstep**: one tick per sense message, at the message's simulation time, answered with its
   tick number; it runs once the radio frames the message announces have arrived.  After a
   (re)join two ticks may be queued: only the newest is answered.
@@ -41,8 +49,6 @@ import numpy as np
 NS_PER_S = 1_000_000_000
 IDLE_WAIT_S = 0.05
 """How long to sleep when nothing can happen before new input arrives."""
-RESYNC_PERIODS = 5
-"""A real-time loop this many periods behind starts its deadlines afresh."""
 SENSE_TIMEOUT_PERIODS = 10
 """Default sense time-out, in control periods (100 ms at 100 Hz)."""
 
@@ -56,8 +62,8 @@ class Wait:
 
 @dataclass(frozen=True)
 class RunTick:
-    """Run a control tick now, at simulation time `sim_time_ns`, answering `tick` (0 in real
-    time)."""
+    """Run a control tick now, at simulation time `sim_time_ns`, answering `tick` (in real
+    time, the newest sense message's)."""
 
     sim_time_ns: int
     tick: int
@@ -130,9 +136,18 @@ class TickScheduler:
         self.safe_stops = 0
         """Safe stops entered since start."""
         self._last: _Sensed | None = None
+        self._heard_mono_ns = 0
+        """Arrival of the newest sense message, a repeat included (for the time-out)."""
         self._pending: _Sensed | None = None
-        self._next_deadline_ns = 0
-        self._last_start_ns: int | None = None
+        self._due_sim_ns = 0
+        """Real time: the simulation time the next tick is due at (a grid point)."""
+        self._free_mono_ns: int | None = None
+        """When the last tick ended: grid points before it are skipped."""
+        self._tick_deadline_ns = 0
+        """The monotonic deadline of the tick handed out last."""
+        self._last_tick_sim_ns: int | None = None
+        self._next_stop_ns = 0
+        """When the next safe-stop period is due (monotonic)."""
         self._resume = False
         self.epoch: int | None = None
         """The world epoch of the newest sense message."""
@@ -164,26 +179,48 @@ class TickScheduler:
         if new_epoch:
             self.epoch_changes += 1
             self._new_epoch = True
+        gap = (
+            previous is not None
+            and not lockstep
+            and arrival_mono_ns - self._heard_mono_ns > self.sense_timeout_ns
+        )
+        self._heard_mono_ns = arrival_mono_ns
         if previous is None:
-            self._next_deadline_ns = arrival_mono_ns
-        elif (
-            new_epoch
-            or self.safe_stopped
-            or (not lockstep and arrival_mono_ns - previous.arrival_mono_ns > self.sense_timeout_ns)
-        ):
-            self._next_deadline_ns = arrival_mono_ns  # start afresh: no burst of late ticks
-            self._last_start_ns = None
+            self._start_grid(t_ns)
+        elif new_epoch or self.safe_stopped or gap:
+            self._start_grid(t_ns)  # start afresh: no burst of late ticks
             self._resume = True
             self.safe_stopped = False
+        elif not lockstep and not self.lockstep and (tick, t_ns) == (previous.tick, previous.t_ns):
+            return  # a repeat: the world is holding its time, and is there
+        elif lockstep != self.lockstep:
+            self._start_grid(t_ns)
         self._last = sensed
         self.lockstep = lockstep
         self._pending = sensed if lockstep else None
 
+    def _start_grid(self, t_ns: int) -> None:
+        self._due_sim_ns = t_ns
+        self._free_mono_ns = None
+        self._last_tick_sim_ns = None
+
+    def _extrapolated_ns(self, mono_now_ns: int) -> int:
+        assert self._last is not None
+        return self._last.t_ns + (mono_now_ns - self._last.arrival_mono_ns)
+
+    def _world_time_ns(self, mono_now_ns: int) -> int:
+        """Extrapolated from the newest sense message, at most one period past it."""
+        assert self._last is not None
+        return min(self._extrapolated_ns(mono_now_ns), self._last.t_ns + self.period_ns)
+
     def sim_time_ns(self, mono_now_ns: int) -> int | None:
-        """The simulation time now, extrapolated from the newest sense message; None before."""
+        """The simulation time now, extrapolated from the newest sense message (in real time at
+        most one period past it, unless in a safe stop); None before the first."""
         if self._last is None:
             return None
-        return self._last.t_ns + (mono_now_ns - self._last.arrival_mono_ns)
+        if self.lockstep or self.safe_stopped:
+            return self._extrapolated_ns(mono_now_ns)
+        return self._world_time_ns(mono_now_ns)
 
     def poll(self, mono_now_ns: int, frames_queued: int) -> Wait | RunTick | SafeStop:
         if self._last is None:
@@ -196,18 +233,43 @@ class TickScheduler:
             resumed, self._resume = self._resume, False
             new_epoch, self._new_epoch = self._new_epoch, False
             return RunTick(pending.t_ns, pending.tick, mono_now_ns, resumed, new_epoch)
-        if mono_now_ns < self._next_deadline_ns:
-            return Wait((self._next_deadline_ns - mono_now_ns) / NS_PER_S)
-        sim_now = self._last.t_ns + (mono_now_ns - self._last.arrival_mono_ns)
-        if mono_now_ns - self._last.arrival_mono_ns > self.sense_timeout_ns:
-            entered = not self.safe_stopped
-            if entered:
-                self.safe_stopped = True
-                self.safe_stops += 1
-            return SafeStop(sim_now, mono_now_ns, entered)
+        silent_ns = mono_now_ns - self._heard_mono_ns
+        if silent_ns > self.sense_timeout_ns:
+            return self._safe_stop(mono_now_ns)
+        last = self._last
+        self._skip_passed_grid_points()
+        if self._due_sim_ns > last.t_ns:
+            # The world has not reached the next grid point yet: wait for its next message.
+            until_timeout_s = (self.sense_timeout_ns - silent_ns) / NS_PER_S
+            return Wait(min(IDLE_WAIT_S, max(until_timeout_s, 0.0) + 1e-4))
+        deadline_ns = last.arrival_mono_ns + (self._due_sim_ns - last.t_ns)
+        if mono_now_ns < deadline_ns:  # only for arrivals stamped after this poll's clock
+            return Wait((deadline_ns - mono_now_ns) / NS_PER_S)
+        self._tick_deadline_ns = deadline_ns
         resumed, self._resume = self._resume, False
         new_epoch, self._new_epoch = self._new_epoch, False
-        return RunTick(sim_now, 0, mono_now_ns, resumed, new_epoch)
+        return RunTick(self._world_time_ns(mono_now_ns), last.tick, mono_now_ns, resumed, new_epoch)
+
+    def _skip_passed_grid_points(self) -> None:
+        """The next tick is due at the first grid point after the last tick ended (as the
+        newest sense message maps that instant to simulation time)."""
+        if self._free_mono_ns is None:
+            return
+        free_sim_ns = self._world_time_ns(self._free_mono_ns)
+        self._free_mono_ns = None
+        if free_sim_ns >= self._due_sim_ns:
+            passed = (free_sim_ns - self._due_sim_ns) // self.period_ns + 1
+            self._due_sim_ns += passed * self.period_ns
+
+    def _safe_stop(self, mono_now_ns: int) -> Wait | SafeStop:
+        entered = not self.safe_stopped
+        if entered:
+            self.safe_stopped = True
+            self.safe_stops += 1
+            self._next_stop_ns = mono_now_ns
+        if mono_now_ns < self._next_stop_ns:
+            return Wait((self._next_stop_ns - mono_now_ns) / NS_PER_S)
+        return SafeStop(self._extrapolated_ns(mono_now_ns), mono_now_ns, entered)
 
     def finished(self, tick: RunTick | SafeStop, end_mono_ns: int) -> None:
         """A real-time tick (or safe-stop period) ended: record its timing and set the next
@@ -215,17 +277,16 @@ class TickScheduler:
         if self.lockstep:
             return
         if isinstance(tick, SafeStop):
-            self._last_start_ns = None
-            self._next_deadline_ns = max(self._next_deadline_ns, end_mono_ns) + self.period_ns
+            self._last_tick_sim_ns = None
+            self._next_stop_ns = max(self._next_stop_ns, end_mono_ns) + self.period_ns
             return
-        start = tick.started_mono_ns
-        deadline = self._next_deadline_ns
-        if self._last_start_ns is not None:
-            late = start - deadline > self.period_ns
+        deadline = self._tick_deadline_ns
+        if self._last_tick_sim_ns is not None:
+            late = tick.started_mono_ns - deadline > self.period_ns
             self.timing.record(
-                start - self._last_start_ns, late or end_mono_ns > deadline + self.period_ns
+                tick.sim_time_ns - self._last_tick_sim_ns,
+                late or end_mono_ns > deadline + self.period_ns,
             )
-        self._last_start_ns = start
-        self._next_deadline_ns = deadline + self.period_ns
-        if end_mono_ns - self._next_deadline_ns > RESYNC_PERIODS * self.period_ns:
-            self._next_deadline_ns = end_mono_ns + self.period_ns
+        self._last_tick_sim_ns = tick.sim_time_ns
+        self._due_sim_ns += self.period_ns
+        self._free_mono_ns = end_mono_ns

@@ -3,10 +3,11 @@ what simulation time, and how deadline misses are counted; on a fake monotonic c
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
 from robot_firmware.tick_scheduler import (
-    RESYNC_PERIODS,
     SENSE_TIMEOUT_PERIODS,
     RunTick,
     SafeStop,
@@ -18,8 +19,37 @@ PERIOD_NS = 10_000_000
 MS = 1_000_000
 
 
-def real_time(scheduler: TickScheduler, t_ns: int, arrival_ns: int) -> None:
-    scheduler.sensed(t_ns, tick=0, lockstep=False, radio_frames=0, arrival_mono_ns=arrival_ns)
+def real_time(scheduler: TickScheduler, t_ns: int, arrival_ns: int, tick: int = 0) -> None:
+    scheduler.sensed(t_ns, tick=tick, lockstep=False, radio_frames=0, arrival_mono_ns=arrival_ns)
+
+
+class RealTimeWorld:
+    """A real-time world's sense messages: one every `every_ms` of wall time, each
+    `advance_ms` of simulation time later than the one before (advance < every: the world
+    runs slower than the wall clock), from simulation time `t0_ms` at wall time 0."""
+
+    def __init__(
+        self,
+        scheduler: TickScheduler,
+        t0_ms: float = 0.0,
+        every_ms: float = 10.0,
+        advance_ms: float = 10.0,
+    ) -> None:
+        self.scheduler = scheduler
+        self.t0_ms, self.every_ms, self.advance_ms = t0_ms, every_ms, advance_ms
+        self.sent = 0
+
+    def run_until(self, wall_ms: float) -> None:
+        """Deliver every message due by `wall_ms`."""
+        while self.sent * self.every_ms <= wall_ms:
+            k = self.sent
+            real_time(
+                self.scheduler,
+                t_ns=round((self.t0_ms + k * self.advance_ms) * MS),
+                arrival_ns=round(k * self.every_ms * MS),
+                tick=k,
+            )
+            self.sent += 1
 
 
 def test_no_tick_runs_before_the_first_sense_message() -> None:
@@ -34,14 +64,23 @@ def test_real_time_ticks_run_every_period_at_the_extrapolated_simulation_time() 
     first = scheduler.poll(100 * MS, 0)
     assert first == RunTick(sim_time_ns=2_000 * MS, tick=0, started_mono_ns=100 * MS)
     scheduler.finished(first, end_mono_ns=101 * MS)
-    early = scheduler.poll(104 * MS, 0)
-    assert isinstance(early, Wait) and early.timeout_s == pytest.approx(0.006)
+    early = scheduler.poll(109 * MS, 0)
+    assert isinstance(early, Wait)  # for the world's next message
+    real_time(scheduler, t_ns=2_010 * MS, arrival_ns=110 * MS, tick=1)
     second = scheduler.poll(110 * MS + 300_000, 0)
     assert isinstance(second, RunTick)
-    assert second.sim_time_ns == 2_010 * MS + 300_000  # 10.3 ms after the message arrived
+    assert second.sim_time_ns == 2_010 * MS + 300_000  # 0.3 ms after the message arrived
     scheduler.finished(second, end_mono_ns=111 * MS)
     assert scheduler.timing.ticks == 1 and scheduler.timing.deadline_misses == 0
     assert list(scheduler.timing.jitter_ns) == [300_000]
+
+
+def test_a_real_time_tick_answers_the_newest_sense_messages_tick() -> None:
+    scheduler = TickScheduler(PERIOD_NS)
+    for k in range(3):  # three messages queued while the loop was busy
+        real_time(scheduler, t_ns=k * PERIOD_NS, arrival_ns=k * PERIOD_NS, tick=40 + k)
+    tick = scheduler.poll(2 * PERIOD_NS, 0)
+    assert isinstance(tick, RunTick) and tick.tick == 42
 
 
 def test_a_newer_sense_message_moves_the_simulation_clock() -> None:
@@ -51,8 +90,74 @@ def test_a_newer_sense_message_moves_the_simulation_clock() -> None:
     assert scheduler.sim_time_ns(4 * MS) == 5_001 * MS
 
 
-def run_ticks(scheduler: TickScheduler, starts_and_ends_ms: list[tuple[float, float]]) -> None:
+def test_the_loop_never_runs_ahead_of_the_worlds_newest_message() -> None:
+    """The world holds its time (no new message): the loop runs no tick past it, and its
+    clock stops at most a period past it."""
+    scheduler = TickScheduler(PERIOD_NS)
+    real_time(scheduler, t_ns=500 * MS, arrival_ns=0)
+    ticks = []
+    for now_ms in range(0, 90):
+        decision = scheduler.poll(now_ms * MS, 0)
+        assert not isinstance(decision, SafeStop)
+        if isinstance(decision, RunTick):
+            ticks.append(decision.sim_time_ns)
+            scheduler.finished(decision, now_ms * MS)
+    assert ticks == [500 * MS]
+    assert scheduler.sim_time_ns(4 * MS) == 504 * MS
+    assert scheduler.sim_time_ns(80 * MS) == 510 * MS
+
+
+@pytest.mark.parametrize("rate", [1.0, 0.5, 0.2])
+def test_a_slowed_world_gets_one_tick_per_period_of_its_time(rate: float) -> None:
+    """A world at real-time factor `rate`: ticks stay one period of simulation time apart
+    (the control law's fixed step), the world's slowness is no deadline miss, and no tick
+    runs at a time the world has not reached within a period."""
+    scheduler = TickScheduler(PERIOD_NS)
+    world = RealTimeWorld(scheduler, t0_ms=1_000.0, every_ms=10.0 / rate)
+    ticks: list[RunTick] = []
+    for now_us in range(0, 2_000_000, 250):
+        now_ms = now_us / 1_000
+        world.run_until(now_ms)
+        decision = scheduler.poll(now_us * 1_000, 0)
+        assert not isinstance(decision, SafeStop)
+        if isinstance(decision, RunTick):
+            newest_ms = world.t0_ms + (world.sent - 1) * world.advance_ms
+            assert decision.sim_time_ns <= (newest_ms + 10.0) * MS
+            ticks.append(decision)
+            scheduler.finished(decision, now_us * 1_000 + 500_000)
+    gaps_ms = {(b.sim_time_ns - a.sim_time_ns) / MS for a, b in itertools.pairwise(ticks)}
+    assert gaps_ms == {10.0}, gaps_ms
+    assert len(ticks) == pytest.approx(2_000 * rate / 10, abs=1)
+    assert scheduler.timing.deadline_misses == 0
+
+
+def test_a_repeated_sense_message_keeps_the_loop_waiting_instead_of_stopping() -> None:
+    """The world holds its time for 300 ms and repeats its newest message every period:
+    the loop neither ticks nor stops safely, and carries on when the world does."""
+    scheduler = TickScheduler(PERIOD_NS)
+    real_time(scheduler, t_ns=700 * MS, arrival_ns=0, tick=70)
+    decisions = []
+    for now_ms in range(0, 300):
+        if now_ms % 10 == 0 and now_ms > 0:
+            real_time(scheduler, t_ns=700 * MS, arrival_ns=now_ms * MS, tick=70)  # a repeat
+        decision = scheduler.poll(now_ms * MS, 0)
+        if isinstance(decision, RunTick | SafeStop):
+            decisions.append(decision)
+            scheduler.finished(decision, now_ms * MS)
+    assert [d.sim_time_ns for d in decisions] == [700 * MS]
+    assert all(isinstance(d, RunTick) for d in decisions) and not scheduler.safe_stopped
+    real_time(scheduler, t_ns=710 * MS, arrival_ns=300 * MS, tick=71)  # the world moves on
+    tick = scheduler.poll(300 * MS, 0)
+    assert tick == RunTick(710 * MS, 71, 300 * MS)  # not `resumed`: the world was there
+    scheduler.finished(tick, 301 * MS)
+    assert scheduler.timing.deadline_misses == 0
+
+
+def run_ticks(
+    scheduler: TickScheduler, starts_and_ends_ms: list[tuple[float, float]], world: RealTimeWorld
+) -> None:
     for start_ms, end_ms in starts_and_ends_ms:
+        world.run_until(start_ms)
         tick = scheduler.poll(round(start_ms * MS), 0)
         assert isinstance(tick, RunTick), (start_ms, tick)
         scheduler.finished(tick, round(end_ms * MS))
@@ -60,30 +165,36 @@ def run_ticks(scheduler: TickScheduler, starts_and_ends_ms: list[tuple[float, fl
 
 def test_a_tick_that_ends_after_its_period_is_a_deadline_miss() -> None:
     scheduler = TickScheduler(PERIOD_NS)
-    real_time(scheduler, 0, 0)
-    # deadlines at 0, 10, 20, 30 ms; the tick of 10 ms ends at 25 ms, after 10 + 10.
-    run_ticks(scheduler, [(0, 1), (10, 25), (25, 26), (30, 31)])
-    assert scheduler.timing.ticks == 3
+    world = RealTimeWorld(scheduler)
+    # deadlines at 0, 10, 20, 30 ms; the tick of 10 ms ends at 25 ms, after 10 + 10: the 20 ms
+    # deadline passed while it ran and is skipped.
+    run_ticks(scheduler, [(0, 1), (10, 25), (30, 31)], world)
+    world.run_until(35)
+    assert isinstance(scheduler.poll(35 * MS, 0), Wait)
+    assert scheduler.timing.ticks == 2
     assert scheduler.timing.deadline_misses == 1
     assert list(scheduler.timing.recent_miss_ticks) == [1]
 
 
 def test_a_tick_that_starts_more_than_a_period_late_is_a_deadline_miss() -> None:
     scheduler = TickScheduler(PERIOD_NS)
-    real_time(scheduler, 0, 0)
-    run_ticks(scheduler, [(0, 1), (10, 11), (31, 32)])  # the 20 ms deadline started at 31 ms
+    world = RealTimeWorld(scheduler)
+    run_ticks(scheduler, [(0, 1), (10, 11), (31, 32)], world)  # the 20 ms deadline started at 31
     assert scheduler.timing.deadline_misses == 1
 
 
-def test_a_loop_far_behind_starts_its_deadlines_afresh_instead_of_bursting() -> None:
+def test_a_loop_far_behind_skips_the_deadlines_it_missed_instead_of_bursting() -> None:
     scheduler = TickScheduler(PERIOD_NS)
-    real_time(scheduler, 0, 0)
-    run_ticks(scheduler, [(0, 1)])
-    stalled_end_ms = 10 + (RESYNC_PERIODS + 2) * 10  # a stall of several periods
-    run_ticks(scheduler, [(10, stalled_end_ms)])
-    next_poll = scheduler.poll(stalled_end_ms * MS + 1, 0)
-    assert isinstance(next_poll, Wait)  # not a burst of overdue ticks ...
-    assert next_poll.timeout_s == pytest.approx(PERIOD_NS / 1e9, abs=1e-6)  # ... one period on
+    world = RealTimeWorld(scheduler)
+    run_ticks(scheduler, [(0, 1)], world)
+    stalled_end_ms = 10 + 7 * 10  # a stall of several periods
+    run_ticks(scheduler, [(10, stalled_end_ms)], world)
+    world.run_until(stalled_end_ms)  # the messages that queued up meanwhile
+    assert isinstance(scheduler.poll(stalled_end_ms * MS + 1, 0), Wait)  # not a burst ...
+    world.run_until(stalled_end_ms + 10)
+    resumed = scheduler.poll((stalled_end_ms + 10) * MS, 0)  # ... the next grid point
+    assert isinstance(resumed, RunTick) and resumed.sim_time_ns == (stalled_end_ms + 10) * MS
+    assert scheduler.timing.deadline_misses == 1
 
 
 def lockstep(scheduler: TickScheduler, tick: int, frames: int, arrival_ns: int = 0) -> None:
@@ -131,7 +242,8 @@ SENSE_TIMEOUT_NS = SENSE_TIMEOUT_PERIODS * PERIOD_NS
 
 def run_until_safe_stop(scheduler: TickScheduler, sense_every_ms: int, last_sense_ms: int) -> int:
     """Real-time ticks every period with sense messages every `sense_every_ms` until
-    `last_sense_ms`, then none; returns the monotonic time (ms) of the first `SafeStop`."""
+    `last_sense_ms`, then none (the loop waits); returns the monotonic time (ms) of the first
+    `SafeStop`."""
     for now_ms in range(0, 10_000, 10):
         if now_ms <= last_sense_ms and now_ms % sense_every_ms == 0:
             real_time(scheduler, t_ns=(5_000 + now_ms) * MS, arrival_ns=now_ms * MS)
@@ -139,6 +251,9 @@ def run_until_safe_stop(scheduler: TickScheduler, sense_every_ms: int, last_sens
         if isinstance(decision, SafeStop):
             assert decision.entered
             return now_ms
+        if now_ms > last_sense_ms:
+            assert isinstance(decision, Wait), (now_ms, decision)
+            continue
         assert isinstance(decision, RunTick), (now_ms, decision)
         assert not decision.resumed
         scheduler.finished(decision, now_ms * MS + MS)
@@ -181,24 +296,24 @@ def test_after_a_safe_stop_the_first_tick_uses_the_new_message_and_is_marked_res
     tick = scheduler.poll(back_ms * MS, 0)
     assert tick == RunTick(20_000 * MS, 0, back_ms * MS, resumed=True)
     scheduler.finished(tick, back_ms * MS + MS)
+    real_time(scheduler, t_ns=20_010 * MS, arrival_ns=back_ms * MS + 10 * MS)
     following = scheduler.poll(back_ms * MS + 10 * MS, 0)
     assert isinstance(following, RunTick) and not following.resumed
     scheduler.finished(following, back_ms * MS + 11 * MS)
-    assert scheduler.timing.ticks == tick_count_before_stop(stop_ms) + 1
+    assert scheduler.timing.ticks == tick_count_before_stop(100) + 1
     assert scheduler.timing.deadline_misses == 0  # the gap is not a burst of misses
 
 
-def tick_count_before_stop(stop_ms: int) -> int:
-    """Ticks recorded by `run_until_safe_stop` before `stop_ms` (the first one has no period)."""
-    return stop_ms // 10 - 1
+def tick_count_before_stop(last_sense_ms: int) -> int:
+    """Ticks recorded by `run_until_safe_stop` (the first one has no period)."""
+    return last_sense_ms // 10
 
 
 def test_a_frozen_loop_with_messages_waiting_resynchronises_without_a_burst() -> None:
     """SIGSTOP, then SIGCONT: the messages that were waiting arrive at once, long after the
     previous one; the loop does not run the ticks it missed, and marks the next one resumed."""
     scheduler = TickScheduler(PERIOD_NS)
-    real_time(scheduler, 0, 0)
-    run_ticks(scheduler, [(0, 1), (10, 11)])
+    run_ticks(scheduler, [(0, 1), (10, 11)], RealTimeWorld(scheduler))
     thawed_ms = 5_000
     for t_ms in (15, 25, 35):  # queued before the freeze, applied on waking
         real_time(scheduler, t_ns=t_ms * MS, arrival_ns=thawed_ms * MS)
@@ -235,9 +350,14 @@ def _sensed_epoch(
     scheduler.sensed(t_ns, tick, lockstep, 0, arrival_ns, epoch)
 
 
-def _run_ticks(scheduler: TickScheduler, start_ns: int, count: int) -> list[RunTick]:
+def _run_ticks(
+    scheduler: TickScheduler, start_ns: int, count: int, t0_ns: int, epoch: int
+) -> list[RunTick]:
+    """`count` ticks a period apart from wall time `start_ns`, a sense message of the world at
+    `t0_ns` (at `start_ns`) and on before each."""
     ticks = []
     for k in range(count):
+        _sensed_epoch(scheduler, t0_ns + k * PERIOD_NS, start_ns + k * PERIOD_NS, epoch)
         decision = scheduler.poll(start_ns + k * PERIOD_NS, 0)
         assert isinstance(decision, RunTick)
         scheduler.finished(decision, start_ns + k * PERIOD_NS + MS)
@@ -250,8 +370,7 @@ def test_a_new_world_epoch_moves_the_clock_backwards_or_forwards_at_once(
     new_world_t_ns: int,
 ) -> None:
     scheduler = TickScheduler(PERIOD_NS)
-    _sensed_epoch(scheduler, 5_000 * MS, 0, epoch=11)
-    before = _run_ticks(scheduler, 0, 3)
+    before = _run_ticks(scheduler, 0, 3, t0_ns=5_000 * MS, epoch=11)
     assert not any(t.new_epoch or t.resumed for t in before)
     # The restarted world's first sense message, 35 ms later (no sense time-out).
     _sensed_epoch(scheduler, new_world_t_ns, 35 * MS, epoch=12)
@@ -259,7 +378,7 @@ def test_a_new_world_epoch_moves_the_clock_backwards_or_forwards_at_once(
     assert first == RunTick(new_world_t_ns, 0, 35 * MS, resumed=True, new_epoch=True)
     scheduler.finished(first, 36 * MS)
     assert scheduler.epoch == 12 and scheduler.epoch_changes == 1
-    later = _run_ticks(scheduler, 45 * MS, 3)
+    later = _run_ticks(scheduler, 45 * MS, 3, t0_ns=new_world_t_ns + PERIOD_NS, epoch=12)
     assert [t.sim_time_ns for t in later] == [new_world_t_ns + k * PERIOD_NS for k in (1, 2, 3)]
     assert not any(t.new_epoch or t.resumed for t in later)
 
