@@ -21,7 +21,7 @@ echo "setting up the environment in $venv (first run only; takes a minute)..." >
 log="$venv/ensure-env.log"
 if ! {
     "$venv/bin/python" -m pip install --upgrade pip &&
-        "$venv/bin/python" -m pip install -e "$root[dev]"
+        "$venv/bin/python" -m pip install -e "$root[dev,cluster]"
 } > "$log" 2>&1; then
     cat "$log" >&2
     echo "error: installing the environment failed; pip's output above is also in $log" >&2

@@ -1,7 +1,7 @@
 """`swarm tune`: tune the fuzzy scheduler (eqs. 6-7, Table 2) on eq. 16 with OFA, FA, GA or PSO.
 
     swarm tune --scenario FILE --out DIR [--algo ofa|fa|ga|pso|random[,...]] [--budget N]
-               [--seed S] [--duration S] [--resume]
+               [--seed S] [--duration S] [--resume] [--ray HOST:PORT]
 
 ``random`` is pure random search at the same budget, the baseline the optimisers must beat.
 
@@ -23,6 +23,11 @@ duration, seeds and budget, so ``--algo ofa`` and a later ``--algo ga,pso`` into
 end up in one figure. The optimiser's state is saved after every generation; ``--resume``
 continues an interrupted run (Ctrl-C included) and gives the result an uninterrupted run would.
 
+``--ray HOST:PORT`` evaluates each generation's batch on a Ray cluster
+(:mod:`services.tuner.cluster`, ``pip install .[cluster]``), with the same results as a local
+run; the optimiser and its checkpoints stay in this process. Without it Ray is never imported.
+A cluster that loses its tasks beyond retrying ends the run with status 1, checkpointed.
+
 A user mistake (unreadable scenario, unknown algorithm, bad number, an existing run without
 ``--resume``) raises :class:`~swarm_config.scenario.ScenarioError` or :class:`TuneArgumentError`, a
 ValueError that is also a ScenarioError; the ``swarm`` command prints its message and exits
@@ -42,6 +47,7 @@ from typing import TextIO
 
 import numpy as np
 
+from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
 from services.tuner.evaluation import ProgressCallback, snr_fitness_from_cost
 from services.tuner.fitness import evaluate_fitness
 from services.tuner.fuzzy_encoding import encode_default
@@ -61,7 +67,7 @@ from services.tuner.fuzzy_tuning import (
     write_text_atomically,
 )
 from services.tuner.registry import ALGORITHMS
-from swarm_config.scenario import ScenarioError, load_scenario
+from swarm_config.scenario import Scenario, ScenarioError, load_scenario
 
 DEFAULT_ALGORITHM = "ofa"
 DEFAULT_BUDGET = 800
@@ -71,6 +77,7 @@ DEFAULT_EVALUATION_DURATION_S = 30.0
 then averages over 0-30 s: the approach from the starting poses, more than one lap of the circle
 and one pass of the obstacle."""
 EXIT_INTERRUPTED = 130
+EXIT_CLUSTER_LOST = 1
 
 
 class TuneArgumentError(ScenarioError, ValueError):
@@ -178,6 +185,13 @@ def add_tune_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentPars
         "duration if shorter)",
     )
     tune.add_argument("--resume", action="store_true", help="continue the runs checkpointed in DIR")
+    tune.add_argument(
+        "--ray",
+        default=None,
+        metavar="HOST:PORT",
+        help="evaluate the fitness batches on the Ray cluster whose head is at HOST:PORT "
+        "(needs `pip install .[cluster]`; same results as a local run)",
+    )
     tune.set_defaults(handler=run_tune)
 
 
@@ -211,10 +225,39 @@ def run_tune(args: argparse.Namespace) -> int:
         ]
         for settings in all_settings:  # refuse a clash before any algorithm starts
             prepare_run_dir(out_dir / settings.algorithm, settings, bool(args.resume))
+        cluster = None if args.ray is None else connect_cluster(str(args.ray))
     except ScenarioError:
         raise
     except ValueError as exc:
         raise TuneArgumentError(str(exc)) from None
+    try:
+        return _tune_and_report(
+            args,
+            scenario,
+            scenario_path,
+            out_dir,
+            algorithms,
+            all_settings,
+            cluster,
+            wall_start,
+            cpu_start,
+        )
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def _tune_and_report(
+    args: argparse.Namespace,
+    scenario: Scenario,
+    scenario_path: Path,
+    out_dir: Path,
+    algorithms: list[str],
+    all_settings: list[TuningSettings],
+    cluster: RayCluster | None,
+    wall_start: float,
+    cpu_start: float,
+) -> int:
     first = all_settings[0]
     print(
         f"tune {','.join(algorithms)} on {scenario.name}: {first.budget} evaluations each of "
@@ -223,6 +266,8 @@ def run_tune(args: argparse.Namespace) -> int:
         f"{first.noise_seed}",
         flush=True,
     )
+    if cluster is not None:
+        print(f"fitness batches go to the {cluster.describe()}", flush=True)
 
     progress = ProgressLine(sys.stderr)
     outcomes: list[TuningOutcome] = []
@@ -230,8 +275,21 @@ def run_tune(args: argparse.Namespace) -> int:
         run_dir = out_dir / settings.algorithm
         try:
             outcome = tune_fuzzy_scheduler(
-                scenario, settings, run_dir, resume=bool(args.resume), progress=progress.callback
+                scenario,
+                settings,
+                run_dir,
+                resume=bool(args.resume),
+                progress=progress.callback,
+                objective_factory=None if cluster is None else cluster.objective,
             )
+        except ClusterError as exc:
+            progress.close()
+            print(
+                f"swarm tune: {exc}; {settings.algorithm} is checkpointed in {run_dir}; run the "
+                "same command with --resume to continue",
+                file=sys.stderr,
+            )
+            return EXIT_CLUSTER_LOST
         except KeyboardInterrupt:
             progress.close()
             print(

@@ -35,12 +35,13 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from services.tuner.checkpoint import load_checkpoint
-from services.tuner.evaluation import FloatArray, ProgressCallback
+from services.tuner.evaluation import FloatArray, Objective, ProgressCallback
 from services.tuner.fitness import DEFAULT_COLLISION_PENALTY, evaluation_scenario, make_objective
 from services.tuner.fuzzy_encoding import DIMENSION, to_parameters
 from services.tuner.registry import ALGORITHMS
@@ -202,6 +203,18 @@ ProgressFactory = Callable[[TuningSettings, int], ProgressCallback | None]
 """Given the settings and the evaluations already done (resume), a per-generation callback."""
 
 
+class ObjectiveFactory(Protocol):
+    """Builds the objective of a run, as :func:`~services.tuner.fitness.make_objective` does.
+
+    Another factory may evaluate elsewhere (:meth:`services.tuner.cluster.RayCluster.objective`
+    on a Ray cluster) but must give the same costs.
+    """
+
+    def __call__(
+        self, scenario: Scenario, *, duration_s: float | None, collision_penalty: float
+    ) -> Objective: ...
+
+
 def prepare_run_dir(run_dir: Path, settings: TuningSettings, resume: bool) -> int:
     """Check the folder for a resume or a fresh start; return the evaluations already done.
 
@@ -241,12 +254,14 @@ def tune_fuzzy_scheduler(
     resume: bool = False,
     progress: ProgressFactory | None = None,
     checkpoint_every: int = 1,
+    objective_factory: ObjectiveFactory | None = None,
 ) -> TuningOutcome:
     """Run one algorithm on eq. 16 for ``scenario`` and write its folder (see module docstring).
 
     ``settings`` come from :meth:`TuningSettings.create` with the same scenario. With
     ``resume`` an existing checkpoint in ``run_dir`` is continued; the result is the same as
-    that of an uninterrupted run.
+    that of an uninterrupted run. ``objective_factory`` (default
+    :func:`~services.tuner.fitness.make_objective`, in this process) builds the objective.
     """
     if settings.scenario_sha256 != scenario_digest(scenario):
         raise ValueError("settings were made for another scenario")
@@ -255,7 +270,7 @@ def tune_fuzzy_scheduler(
     write_text_atomically(
         run_dir / RUN_SETTINGS_NAME, json.dumps(asdict(settings), indent=2) + "\n"
     )
-    objective = make_objective(
+    objective = (objective_factory or make_objective)(
         scenario,
         duration_s=settings.evaluation_duration_s,
         collision_penalty=settings.collision_penalty,
