@@ -41,11 +41,39 @@ Robots and the world may also receive every subscriber declaration of the swarm
 knows of a matching subscriber, and the subscriptions it must hear of are wider than its own
 key (the world subscribes to `wire/*/act`), which an ACL rule for `wire/robot1/act` does not
 cover. What they learn is which key expressions someone subscribes to, never data.
+
+**Router links between hosts** (docs/multi-host.md).  A swarm over several hosts has one
+router per host; every process is a client of its own host's router, with the identities and
+rules above.  The world's host runs the *hub*: its router also listens on a `tls/` endpoint
+(`accept_routers`), where the other hosts' routers log in as `router` with the router's
+password.  What a link may carry is checked at both of its ends:
+
+* at the hub, a linked router speaks for the robots of its host: it may do what the robots may
+  do (the union of their rules, the `router` row below), and nothing of the world, launcher,
+  dashboard or operator; a second host's launcher stays local to that host;
+* at another host's router (`connect`: the hub's `tls/HOST:PORT`), the link is the one whose
+  TLS peer shows the swarm's router certificate (its common name, `cert_common_names`): the
+  only certificate the swarm's CA ever signed (swarm_config/tls.py).  What comes from the hub
+  passed the hub's rules already, so the link may carry anything of the swarm's keys; what the
+  host's own clients send passes their own rules first.
+
+Links between hosts run over TLS only: a `tcp/` link would show no certificate, so the second
+host could not tell its hub from any other client.  Routers with links announce a lease of
+`ROUTER_LINK_LEASE_MS`, like the clients (configs/zenoh/client.json5): a host cut off is seen
+gone, its robots' tokens with it, after about a second.
+
+| router of   | subject (how the link is recognised) | may                                  |
+|-------------|--------------------------------------|--------------------------------------|
+| one host    | `router` (user name)                 | nothing (no second router)           |
+| the hub     | `router` (user name)                 | what the robots may do, both flows   |
+| another host| `hub` (the router certificate's CN)  | anything under `swarm/<swarm>/**`    |
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
+import subprocess
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,10 +90,27 @@ from swarm_config.credentials import (
     CredentialSet,
     write_private_file,
 )
-from swarm_config.tls import TlsError, TlsFiles
+from swarm_config.tls import OPENSSL_TIMEOUT_S, TlsError, TlsFiles, find_openssl
 
 ROUTER_CONFIG_FILE = "router.json5"
 """The generated router config, beside the credentials (it names the user file)."""
+HUB = "hub"
+"""The subject, on another host's router, of its link to the world host's router."""
+ROUTER_LINK_LEASE_MS = 1000
+"""The lease a router with links to other hosts announces: a silent link is closed after it."""
+ROUTER_LINK_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
+"""How often another host's router tries the hub again, while it is unreachable."""
+EVERY_MESSAGE = (
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "declare_queryable",
+    "reply",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+)
 
 Flow = Literal["ingress", "egress"]
 
@@ -110,8 +155,11 @@ def _token_watcher(grants: Grants, key_expr: str) -> None:
     grants.allow("egress", ("liveliness_token",), key_expr)
 
 
-def identity_grants(swarm: str, robots: Sequence[str]) -> dict[str, Grants]:
-    """What each identity of a run of `robots` on `swarm` may do (the table above)."""
+def identity_grants(
+    swarm: str, robots: Sequence[str], accept_routers: bool = False
+) -> dict[str, Grants]:
+    """What each identity of a run of `robots` on `swarm` may do (the table above); with
+    `accept_routers` (the hub of a swarm over hosts), `router` may do what the robots may."""
     keys = SwarmKeys(swarm)
     grants: dict[str, Grants] = {}
     for name in robots:
@@ -145,16 +193,43 @@ def identity_grants(swarm: str, robots: Sequence[str]) -> dict[str, Grants]:
         # A publisher learns whether anyone subscribes from the subscribers' declarations,
         # whose keys are often wider than its own (`wire/*/act`): it may see all of them.
         grants[identity].allow("egress", SUBSCRIBE, keys.everything)
+    if accept_routers:
+        # Another host's router speaks for the robots of its host, whichever they are.
+        for name in robots:
+            for (message, flow), key_exprs in grants[name].allowed.items():
+                grants[ROUTER].allow(flow, (message,), *key_exprs)
     return grants
 
 
-def access_control(swarm: str, robots: Sequence[str]) -> dict[str, Any]:
-    """The `access_control` section: default deny, one subject and its rules per identity."""
+def hub_link_grants(swarm: str) -> Grants:
+    """What another host's router lets its link to the hub carry: anything of the swarm (the
+    hub checked it against its own rules)."""
+    grants = Grants()
+    for flow in ("ingress", "egress"):
+        grants.allow(flow, EVERY_MESSAGE, SwarmKeys(swarm).everything)
+    return grants
+
+
+def access_control(
+    swarm: str,
+    robots: Sequence[str],
+    accept_routers: bool = False,
+    hub_common_name: str | None = None,
+) -> dict[str, Any]:
+    """The `access_control` section: default deny, one subject and its rules per identity;
+    with `hub_common_name` (another host's router), also the `hub` subject: the link whose TLS
+    peer shows a certificate of that common name."""
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    for identity, grants in identity_grants(swarm, robots).items():
-        subjects.append({"id": identity, "usernames": [identity]})
+    identities: list[tuple[str, Grants, dict[str, Any]]] = [
+        (identity, grants, {"usernames": [identity]})
+        for identity, grants in identity_grants(swarm, robots, accept_routers).items()
+    ]
+    if hub_common_name is not None:
+        identities.append((HUB, hub_link_grants(swarm), {"cert_common_names": [hub_common_name]}))
+    for identity, grants, match in identities:
+        subjects.append({"id": identity, **match})
         rule_ids = []
         for (message, flow), key_exprs in sorted(grants.allowed.items()):
             rule_id = f"{identity}-{flow}-{message}"
@@ -190,21 +265,125 @@ def tls_link(tls: TlsFiles) -> dict[str, Any]:
     }
 
 
+@dataclass(frozen=True)
+class CertificateNames:
+    """Who a certificate names: its subject's common name and its subjectAltName entries."""
+
+    common_name: str
+    ip_addresses: frozenset[str]
+    dns_names: frozenset[str]
+
+    def covers(self, host: str) -> bool:
+        """Whether a client reaching the router at `host` accepts this certificate."""
+        try:
+            return str(ipaddress.ip_address(host)) in self.ip_addresses
+        except ValueError:
+            return host.lower() in self.dns_names
+
+
+def certificate_names(certificate: Path) -> CertificateNames:
+    """The names in a PEM certificate (read by `openssl x509`); TlsError when it cannot be
+    read or has no common name."""
+    try:
+        result = subprocess.run(
+            [find_openssl(), "x509", "-in", str(certificate), "-noout", "-nameopt", "RFC2253"]
+            + ["-subject", "-ext", "subjectAltName"],
+            capture_output=True,
+            text=True,
+            timeout=OPENSSL_TIMEOUT_S,
+            check=False,
+        )
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise TlsError(f"cannot read {certificate}: {exc}") from None
+    if result.returncode != 0:
+        raise TlsError(f"{certificate} is not a certificate `openssl x509` reads")
+    common_name = ""
+    ips: set[str] = set()
+    dns: set[str] = set()
+    for line in result.stdout.splitlines():
+        line = line.strip()
+        if line.startswith("subject="):
+            for part in line.removeprefix("subject=").split(","):
+                key, _, value = part.strip().partition("=")
+                if key == "CN":
+                    common_name = value
+        for entry in line.split(","):
+            kind, _, value = entry.strip().partition(":")
+            if kind == "IP Address" and value:
+                ips.add(str(ipaddress.ip_address(value.strip())))
+            elif kind == "DNS" and value:
+                dns.add(value.strip().lower())
+    if not common_name:
+        raise TlsError(f"{certificate} names no common name (CN)")
+    return CertificateNames(common_name, frozenset(ips), frozenset(dns))
+
+
+def endpoint_host(endpoint: str) -> str:
+    """HOST of `proto/HOST:PORT[?options]` (an IPv6 address without its brackets)."""
+    address = endpoint.split("/", 1)[-1].split("?", 1)[0]
+    return address.rsplit(":", 1)[0].strip("[]")
+
+
+def check_router_links(
+    connect: Sequence[str], accept: Sequence[str], tls: TlsFiles | None
+) -> CertificateNames | None:
+    """The router certificate's names when this router has links to other hosts (`connect`:
+    the hub's endpoints; `accept`: where the hub takes other hosts' routers), after checking
+    that every such endpoint is `tls/`, that there is a certificate, and that it names each
+    host a link reaches the hub at; TlsError saying what to do otherwise."""
+    links = [*connect, *accept]
+    if not links:
+        return None
+    plain = [endpoint for endpoint in links if not endpoint.startswith("tls/")]
+    if plain:
+        raise TlsError(
+            f"router links between hosts run over TLS, not {', '.join(plain)}: give "
+            "tls/HOST:PORT (HOST: the world host's address in its router certificate)"
+        )
+    if tls is None:
+        raise TlsError(
+            "router links between hosts need the swarm's CA and router certificate: make them "
+            "with `swarm credentials DIR --tls --tls-host HOST` (HOST: the world host's "
+            "address) and give every host a copy of DIR"
+        )
+    names = certificate_names(tls.router_certificate)
+    for endpoint in links:
+        host = endpoint_host(endpoint)
+        unspecified = host in ("0.0.0.0", "::")  # a listener on every interface
+        if not unspecified and not names.covers(host):
+            raise TlsError(
+                f"{endpoint}: the router certificate {tls.router_certificate} does not name "
+                f"{host}, so the other hosts' routers would refuse it; make one that does "
+                f"with `swarm credentials DIR --tls --rotate --tls-host {host}`"
+            )
+    return names
+
+
 def router_config_document(
     credentials: CredentialSet,
     users_file: Path,
     listen: Sequence[str],
     tls: TlsFiles | None = None,
+    connect: Sequence[str] = (),
+    accept_routers: bool = False,
 ) -> dict[str, Any]:
     """The whole router config of a run (what configs/zenoh/router.json5 sets, plus login and
     access control, and with `tls` the certificate of its `tls/` endpoints); usable by
-    `swarm router --config` and by a stock `zenohd -c`. TlsError for a `tls/` endpoint
-    without `tls`."""
+    `swarm router --config` and by a stock `zenohd -c`.
+
+    A swarm over hosts (module docstring): `accept_routers` makes the hub, whose `tls/` listen
+    endpoints take the other hosts' routers; `connect` (the hub's `tls/` endpoints) makes
+    another host's router, linked to the hub. TlsError for a `tls/` endpoint without `tls`,
+    or a link that is not TLS or reaches a host the router certificate does not name."""
     if tls is None and any(endpoint.startswith("tls/") for endpoint in listen):
         raise TlsError(
             "a tls/ listen endpoint needs the router's certificate: make one with "
             "`swarm credentials DIR --tls`"
         )
+    accepting = [e for e in listen if e.startswith("tls/")] if accept_routers else []
+    if accept_routers and not accepting:
+        raise TlsError("a router that takes other hosts' routers needs a tls/ listen endpoint")
+    names = check_router_links(connect, accepting, tls)
     router_password = credentials.passwords[ROUTER].get_secret_value()
     transport: dict[str, Any] = {
         "auth": {
@@ -215,15 +394,37 @@ def router_config_document(
             }
         }
     }
+    link: dict[str, Any] = {}
     if tls is not None:
-        transport["link"] = {"tls": tls_link(tls)}
-    return {
+        link["tls"] = tls_link(tls)
+    if names is not None:
+        link["tx"] = {"lease": ROUTER_LINK_LEASE_MS}
+    if link:
+        transport["link"] = link
+    document: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
-        "transport": transport,
-        "access_control": access_control(credentials.swarm, credentials.robots),
     }
+    if connect:
+        document["connect"] = {
+            "endpoints": list(connect),
+            "timeout_ms": -1,
+            "exit_on_failure": False,
+            "retry": dict(ROUTER_LINK_RETRY),
+        }
+    document.update(
+        {
+            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
+            "transport": transport,
+            "access_control": access_control(
+                credentials.swarm,
+                credentials.robots,
+                accept_routers,
+                names.common_name if connect and names is not None else None,
+            ),
+        }
+    )
+    return document
 
 
 def write_router_config(
@@ -231,13 +432,16 @@ def write_router_config(
     credentials: CredentialSet,
     listen: Sequence[str],
     tls: TlsFiles | None = None,
+    connect: Sequence[str] = (),
+    accept_routers: bool = False,
+    path: Path | None = None,
 ) -> Path:
     """Write the run's router config (mode 0600: it holds the router's password) beside the
-    credentials written by `write_credential_set`; returns its path."""
-    path = directory / ROUTER_CONFIG_FILE
-    document = router_config_document(
-        credentials, (directory / ROUTER_USERS_FILE).resolve(), listen, tls
-    )
+    credentials written by `write_credential_set` in `directory` (or at `path`); returns its
+    path."""
+    path = directory / ROUTER_CONFIG_FILE if path is None else path
+    users_file = (directory / ROUTER_USERS_FILE).resolve()
+    document = router_config_document(credentials, users_file, listen, tls, connect, accept_routers)
     text = "// Generated for one run by `swarm up`; see services/router/access.py.\n"
     write_private_file(path, (text + json.dumps(document, indent=2) + "\n").encode("utf-8"))
     return path
