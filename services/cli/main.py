@@ -226,6 +226,63 @@ def _tls_files_for(
     return files, f"new CA, router certificate for {subject_alt_name(hosts)}"
 
 
+def _only_robots(given: str | None, scenario: str, robots: Sequence[str]) -> tuple[str, ...] | None:
+    """`--only robot3,robot4`: the robots to start on this host, in the order given; a name the
+    scenario does not have is a usage error naming it."""
+    if given is None:
+        return None
+    names = tuple(dict.fromkeys(part.strip() for part in given.split(",") if part.strip()))
+    if not names:
+        raise UsageError("--only needs robot names, e.g. --only robot3,robot4")
+    unknown = [name for name in names if name not in robots]
+    if unknown:
+        raise UsageError(
+            f"--only: no robot {', '.join(map(repr, unknown))} in scenario {scenario!r}; its "
+            f"robots: {', '.join(robots)}"
+        )
+    return names
+
+
+def _check_across_hosts(args: argparse.Namespace) -> None:
+    """`swarm up --connect` joins a world that runs on another host: it needs `--only` and the
+    run's credentials, and takes none of the world's settings."""
+    if args.connect is None:
+        if args.only is not None and args.credentials is None:
+            raise UsageError(
+                "--only runs a part of the swarm, the rest on other hosts: give the run's "
+                "credentials set (`swarm credentials DIR --tls --tls-host HOST`) with "
+                "--credentials DIR, and copy DIR to the other hosts"
+            )
+        return
+    if args.listen is not None:
+        raise UsageError("--listen is for the world's host, --connect for the others: not both")
+    if args.only is None:
+        raise UsageError(
+            "--connect joins a world that runs on another host: say which robots run here "
+            "with --only (e.g. --only robot3,robot4)"
+        )
+    world_flags = [
+        flag
+        for flag, given in (
+            ("--lockstep", args.lockstep),
+            ("--max-speed", args.max_speed is not None),
+            ("--duration", args.duration is not None),
+            ("--radio", args.radio is not None),
+        )
+        if given
+    ]
+    if world_flags:
+        raise UsageError(
+            f"{', '.join(world_flags)}: the world's settings; give them to `swarm up` on the "
+            "world's host (this host runs no world, only the robots of --only)"
+        )
+    if args.credentials is None:
+        raise UsageError(
+            "--connect needs the run's credentials: a copy of the world host's set, "
+            "--credentials DIR (made there with `swarm credentials DIR --tls --tls-host HOST`)"
+        )
+
+
 def _cmd_up(args: argparse.Namespace) -> int:
     from services.launcher.launcher import Launcher, LaunchPlan
     from world.runtime import WorldConfig
@@ -251,6 +308,8 @@ def _cmd_up(args: argparse.Namespace) -> int:
         {k: v for k, v in os.environ.items() if k != CREDENTIALS_FILE_ENV},
     )
     scenario = load_scenario(world.scenario)
+    only = _only_robots(args.only, scenario.name, scenario.robot_names)
+    _check_across_hosts(args)
     out_dir = Path(args.out)
     plan = LaunchPlan(
         scenario=world.scenario,
@@ -266,44 +325,62 @@ def _cmd_up(args: argparse.Namespace) -> int:
         web_port=args.web_port,
         grpc_port=args.grpc_port,
         credentials_dir=Path(args.credentials) if args.credentials else None,
+        only=only,
+        link_listen=split_endpoints(args.listen) if args.listen else (),
+        link_connect=split_endpoints(args.connect) if args.connect else (),
     )
     try:
         launcher = Launcher(plan)
-    except (CredentialsError, TlsError) as exc:
+    except (CredentialsError, TlsError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     _install_stop(launcher.stop)
 
     def ready() -> None:
         mode = "lockstep" if plan.lockstep else "real time"
         length = f"{plan.duration_s} s" if plan.duration_s else "until Ctrl-C"
+        elsewhere = [name for name in scenario.robot_names if name not in plan.started_robots]
+        if not plan.runs_world:
+            print(
+                f"swarm {plan.swarm}: {', '.join(plan.started_robots)} on {endpoint}, this "
+                f"host's router linked to the world's at {', '.join(plan.link_connect)} "
+                "(until Ctrl-C)",
+                flush=True,
+            )
+        else:
+            print(
+                f"swarm {plan.swarm}: {', '.join(plan.started_robots)} on {endpoint} "
+                f"({mode}, {length})",
+                flush=True,
+            )
+        if plan.link_listen:
+            print(
+                f"other hosts' routers: --connect {', '.join(plan.link_listen)}"
+                + (f" (expected there: {', '.join(elsewhere)})" if elsewhere else ""),
+                flush=True,
+            )
+        summary = f"; summary: {out_dir / 'summary.json'}" if plan.runs_world else ""
+        print(f"logs: {out_dir / 'logs'}/<process>.log{summary}", flush=True)
+        made = "the run's, on every host" if plan.across_hosts else "new for this run"
         print(
-            f"swarm {plan.swarm}: {', '.join(scenario.robot_names)} on {endpoint} "
-            f"({mode}, {length})",
-            flush=True,
-        )
-        print(
-            f"logs: {out_dir / 'logs'}/<process>.log; summary: {out_dir / 'summary.json'}",
-            flush=True,
-        )
-        print(
-            f"credentials: {launcher.credentials_dir}/<identity>.json (new for this run; the "
+            f"credentials: {launcher.credentials_dir}/<identity>.json ({made}; the "
             f"swarm command line uses {launcher.credentials_dir}/{OPERATOR}.json)",
             flush=True,
         )
-        if launcher.tls is not None:
+        if launcher.tls is not None and endpoint.startswith("tls/"):
             print(
                 f"TLS: the router's certificate is signed by {launcher.tls.ca_certificate}; "
                 f"the swarm command line needs ${TLS_ROOT_CA_ENV}=<that path> and "
                 f"--connect {endpoint}",
                 flush=True,
             )
-        if plan.dashboard:
+        if "dashboard" in launcher.children:
             print(
                 f"dashboard: open {plan.viewer_url}  (recording: {out_dir / 'dashboard.rrd'})",
                 flush=True,
             )
+        robot = plan.started_robots[-1] if plan.started_robots else "robot2"
         print(
-            "try: swarm status | swarm kill robot2 | swarm restart robot2 | "
+            f"try: swarm status | swarm kill {robot} | swarm restart {robot} | "
             "swarm net set --loss 0.2",
             flush=True,
         )
@@ -311,6 +388,9 @@ def _cmd_up(args: argparse.Namespace) -> int:
     started_s = time.monotonic()
     code = launcher.up(on_ready=ready)
     wall_s = time.monotonic() - started_s
+    if not plan.runs_world:
+        print(f"stopped {', '.join(plan.started_robots)} after {wall_s:.1f} s of wall time")
+        return code
     summary_path = out_dir / "summary.json"
     try:
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
@@ -689,8 +769,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--credentials",
         metavar="DIR",
         help=f"use the credentials in DIR (written by an earlier run or by `swarm credentials`; "
-        f"a new run id is written into them) instead of a fresh set in "
+        f"a new run id is written into them, but not with --only, --listen or --connect: "
+        f"the hosts of one run share its run id) instead of a fresh set in "
         f"DIR/{CREDENTIALS_DIR_NAME}/",
+    )
+    up.add_argument(
+        "--only",
+        metavar="ROBOTS",
+        help="start only these robots of the scenario (comma separated, e.g. robot3,robot4); "
+        "the others run on other hosts (docs/multi-host.md); needs --credentials",
+    )
+    up.add_argument(
+        "--listen",
+        metavar="ENDPOINT",
+        help="the world's host: where its router also takes the other hosts' routers, "
+        "tls/ADDRESS:PORT (an address its router certificate names; docs/multi-host.md)",
+    )
+    up.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        help="join a world that runs on another host: link this host's router to that host's "
+        "--listen endpoint (tls/HOST:PORT) and start only the robots of --only, no world",
     )
     up.set_defaults(handler=_cmd_up)
 

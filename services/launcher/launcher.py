@@ -28,6 +28,15 @@ child is given the path of its own file in `$SWARM_CREDENTIALS_FILE`, never a se
 With a `tls/HOST:PORT` endpoint the router listens with a certificate for HOST signed by the
 run's own CA (swarm_config/tls.py, in `<credentials>/tls/`; one already there is used) and
 every child trusts that CA (`$SWARM_TLS_ROOT_CA`, the path of `ca.pem`).
+
+A swarm over several hosts (docs/multi-host.md) is one launcher per host, each with its own
+router, all with a copy of one credentials set (`credentials_dir`, made by `swarm credentials
+DIR --tls --tls-host HOST`; its run id is the run's, so it is not renewed, and nothing is written
+into it): on the world's host `link_listen` (`tls/ADDRESS:PORT`) is where its router also takes
+the other hosts' routers, and `only` names the robots started there; on every other host
+`link_connect` is the world host's endpoint its router links to, and only the robots of `only`
+start there, with no world and no dashboard, until Ctrl-C or SIGTERM.  The router config of
+such a run is written to `<out>/router.json5` (services/router/access.py: who may use a link).
 """
 
 from __future__ import annotations
@@ -62,11 +71,19 @@ from robot_firmware.net.messages import (
     refusal_of,
 )
 from robot_firmware.net.session import open_client
-from services.router.access import write_router_config
+from services.router.access import (
+    ROUTER_CONFIG_FILE,
+    check_router_links,
+    endpoint_host,
+    write_router_config,
+)
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
     CREDENTIALS_FILE_ENV,
     LAUNCHER,
+    SERVICE_IDENTITIES,
+    CredentialsError,
+    credentials_path,
     generate_credential_set,
     read_credential_set,
     write_credential_set,
@@ -135,19 +152,63 @@ class LaunchPlan:
     grpc_port: int = 9876
     extra_env: dict[str, str] = field(default_factory=dict)
     credentials_dir: Path | None = None
-    """A credentials set to use (its secrets are kept, its run id renewed); None: a fresh set
-    in `<out_dir>/credentials/`."""
+    """A credentials set to use (its secrets are kept, its run id renewed, except across hosts);
+    None: a fresh set in `<out_dir>/credentials/`."""
+    only: Sequence[str] | None = None
+    """The robots started on this host (None: all of `robots`); the others run elsewhere."""
+    link_listen: Sequence[str] = ()
+    """The world's host: `tls/` endpoints where its router also takes other hosts' routers."""
+    link_connect: Sequence[str] = ()
+    """Another host: the world host's `tls/` endpoint its router links to (no world here)."""
 
     @property
     def uses_tls(self) -> bool:
-        """Whether the router listens on TLS (a `tls/HOST:PORT` endpoint)."""
-        return self.endpoint.startswith("tls/")
+        """Whether the router has a TLS endpoint or link (`tls/HOST:PORT`)."""
+        return any(e.startswith("tls/") for e in (self.endpoint, *self.router_links))
 
     @property
     def endpoint_host(self) -> str:
         """HOST of the endpoint `proto/HOST:PORT` (without an IPv6 address's brackets)."""
-        address = self.endpoint.split("/", 1)[-1].split("?", 1)[0]
-        return address.rsplit(":", 1)[0].strip("[]")
+        return endpoint_host(self.endpoint)
+
+    @property
+    def router_links(self) -> tuple[str, ...]:
+        """The endpoints of the router's links to other hosts' routers, either way."""
+        return (*self.link_listen, *self.link_connect)
+
+    @property
+    def across_hosts(self) -> bool:
+        """Whether this host runs only a part of the swarm, the rest on other hosts."""
+        return self.only is not None or bool(self.router_links)
+
+    @property
+    def runs_world(self) -> bool:
+        """Whether the world (and the dashboard) runs on this host."""
+        return not self.link_connect
+
+    @property
+    def started_robots(self) -> tuple[str, ...]:
+        """The robots this launcher starts."""
+        return tuple(self.robots if self.only is None else self.only)
+
+    def check(self) -> None:
+        """ValueError for a plan no launcher can run (what `swarm up` refuses first)."""
+        unknown = [name for name in self.started_robots if name not in self.robots]
+        if unknown:
+            raise ValueError(
+                f"no robot {', '.join(map(repr, unknown))} in the scenario; its robots: "
+                f"{', '.join(self.robots)}"
+            )
+        if self.link_connect and not self.started_robots:
+            raise ValueError("a host that joins a world elsewhere must start a robot")
+        if self.link_connect and self.link_listen:
+            raise ValueError("a host either runs the world (link_listen) or joins one elsewhere")
+        if self.across_hosts and self.credentials_dir is None:
+            raise CredentialsError(
+                "a swarm across hosts shares one credentials set: make it with `swarm "
+                "credentials DIR --tls --tls-host HOST` (HOST: the world host's address), copy "
+                "DIR to every host and give it to each `swarm up --credentials DIR`"
+            )
 
     @property
     def viewer_url(self) -> str:
@@ -166,26 +227,52 @@ class Launcher:
         self.world_quick_deaths = 0
         """Deaths of the world within `WORLD_QUICK_DEATH_S` of its start, in a row."""
         self._admin = AdminQueue()
+        plan.check()
         logs = plan.out_dir / "logs"
-        logs.mkdir(parents=True, exist_ok=True)
         # Credentials for this run (a new run id at least); children get their file's path.
         if plan.credentials_dir is None:
             self.credentials_dir = plan.out_dir / CREDENTIALS_DIR_NAME
             self.credentials = generate_credential_set(plan.swarm, plan.robots)
+        elif plan.across_hosts:
+            # The set every host has a copy of: its run id is the run's, and it stays as it is.
+            self.credentials_dir = plan.credentials_dir
+            self.credentials = read_credential_set(plan.credentials_dir, plan.robots)
         else:
             self.credentials_dir = plan.credentials_dir
             given = read_credential_set(plan.credentials_dir, plan.robots)
             self.credentials = given.with_new_run_id()
-        self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
-        self.tls = self._tls_files() if plan.uses_tls else None
-        router_config = write_router_config(
-            self.credentials_dir, self.credentials, [plan.endpoint], self.tls
-        )
+        if plan.across_hosts:
+            self.tls = read_tls_files(tls_dir(self.credentials_dir)) if plan.uses_tls else None
+            check_router_links(plan.link_connect, plan.link_listen, self.tls)
+            listen = [plan.endpoint, *plan.link_listen]
+            logs.mkdir(parents=True, exist_ok=True)
+            router_config = write_router_config(
+                self.credentials_dir,
+                self.credentials,
+                listen,
+                self.tls,
+                connect=plan.link_connect,
+                accept_routers=bool(plan.link_listen),
+                path=plan.out_dir / ROUTER_CONFIG_FILE,
+            )
+            self.credential_files = {
+                identity: credentials_path(self.credentials_dir, identity)
+                for identity in (*SERVICE_IDENTITIES, *plan.robots)
+            }
+        else:
+            logs.mkdir(parents=True, exist_ok=True)
+            self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
+            self.tls = self._tls_files() if plan.uses_tls else None
+            listen = [plan.endpoint]
+            router_config = write_router_config(
+                self.credentials_dir, self.credentials, listen, self.tls
+            )
         cli = [sys.executable, "-m", "services.cli.main"]
         connect = ["--connect", plan.endpoint, "--swarm", plan.swarm]
+        listen_flags = [flag for endpoint in listen for flag in ("--listen", endpoint)]
         self.children["router"] = Child(
             "router",
-            [*cli, "router", "--listen", plan.endpoint, "--config", str(router_config)],
+            [*cli, "router", *listen_flags, "--config", str(router_config)],
             logs / "router.log",
         )
         world = [
@@ -205,11 +292,12 @@ class Launcher:
             world += ["--duration", str(plan.duration_s)]
         if plan.radio_profile is not None:
             world += ["--radio", plan.radio_profile]
-        self.children["world"] = Child("world", world, logs / "world.log")
-        for name in plan.robots:
+        if plan.runs_world:
+            self.children["world"] = Child("world", world, logs / "world.log")
+        for name in plan.started_robots:
             argv = [*cli, "robot", "--name", name, "--scenario", str(plan.scenario), *connect]
             self.children[name] = Child(name, argv, logs / f"{name}.log")
-        if plan.dashboard:
+        if plan.dashboard and plan.runs_world:
             dashboard = [
                 *cli,
                 "dashboard",
@@ -361,8 +449,9 @@ class Launcher:
         with open_client([self.plan.endpoint], credentials=launcher, tls_root_ca=ca) as session:
             session.declare_queryable(self.keys.admin("launcher", "*"), self._admin.on_query)
             token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
-            self.start("world")
-            for name in self.plan.robots:
+            if "world" in self.children:
+                self.start("world")
+            for name in self.plan.started_robots:
                 self.start(name)
             if "dashboard" in self.children:
                 self.start("dashboard")
@@ -391,8 +480,11 @@ class Launcher:
 
         A clean exit (status 0) ends the run; a world killed through `kill` stays down until
         `restart`; any other exit is a death: the world is started again (it resumes from its
-        checkpoint), unless it died `WORLD_MAX_QUICK_DEATHS` times in a row at its start."""
-        world = self.children["world"]
+        checkpoint), unless it died `WORLD_MAX_QUICK_DEATHS` times in a row at its start.
+        Without a world on this host (it runs elsewhere), None."""
+        world = self.children.get("world")
+        if world is None:
+            return None
         exit_code = None if world.process is None else world.process.poll()
         if exit_code is None or world.killed:
             return None
