@@ -21,7 +21,8 @@ A fault on the same output as an active one replaces it (`pwm_stuck` and `pwm_sa
 a wheel's output; a second `tick_slow` sets a new delay), and `clear_registers` releases all.
 The state of every IP is re-derived from the active set after each change, so clearing leaves
 no trace but what the fault did while it lasted (edges lost while an encoder was cut, a fix
-missed, an expiry counted in EXPIRE_COUNT).
+missed, an expiry counted in EXPIRE_COUNT). A restarted robot process builds a new fabric, so
+its register faults are gone, as after a power cycle of the board.
 
 A forced watchdog expiry lands at the end of the robot's next control tick (`land_pending`,
 called after the firmware's watchdog kick and before the pins are published): the act message

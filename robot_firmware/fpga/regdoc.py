@@ -82,7 +82,8 @@ def _render_fault_effects() -> list[str]:
         "scenario's `faults:` schedule) act on the hardware side of the IPs, below the "
         "firmware: the firmware meets them only in the registers it reads and the pins it "
         "drives. A fault on the same output as an active one replaces it; `clear_registers` "
-        "releases all, and the IPs then behave as if never faulted. A robot's `fault` verb "
+        "releases all, and the IPs then behave as if never faulted; a restarted robot boots "
+        "with none, as after a power cycle. A robot's `fault` verb "
         "with an empty body lists its active faults; its telemetry names them in "
         "`register_faults`.",
         "",
