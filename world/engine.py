@@ -14,10 +14,13 @@ whenever a robot sends one.  The batch simulator calls the same functions, so a 
 `MetricsAccumulator`.  Time advances only through `advance(duty, dt_ns)`; randomness comes from
 a generator seeded by the scenario.
 
+Network faults (per-link profiles, partitions; world/faults.py) are the engine's too: the radio
+draws each frame from them while one is active (`apply_network_fault`).
+
 `checkpoint_state` captures everything that decides what the engine does next (bodies, time,
 the radio queue and burst states, every generator's state, the sensors' schedules, the metric
-accumulators, the link profile, counters) and `restore_checkpoint` carries on from it in a fresh
-engine, bit for bit (world/checkpoint.py writes it to disk).
+accumulators, the link profile and network faults, counters) and `restore_checkpoint` carries
+on from it in a fresh engine, bit for bit (world/checkpoint.py writes it to disk).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from robot_firmware.net.wire import FixSample, SenseMessage
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario
 from world.checkpoint import CheckpointError, decode_array, encode_array
+from world.faults import NetworkFault, NetworkFaults
 from world.metrics import FormationLayout, MetricsAccumulator
 from world.physics import BodyState
 from world.step import (
@@ -121,6 +125,8 @@ class WorldEngine:
             scenario.metrics_config(),
         )
         self.fixes_cut = np.zeros(self.robot_count, dtype=bool)
+        self.network = NetworkFaults(self.names)
+        """The radio medium's network faults (world/faults.py); none at the start."""
 
     @property
     def t_s(self) -> float:
@@ -132,12 +138,21 @@ class WorldEngine:
 
     @property
     def link(self) -> LinkProfile:
-        """How the radio medium treats every link; can be changed while the world runs."""
+        """How the radio medium treats every link a network fault does not change; can be
+        changed while the world runs."""
         return self.params.link
 
     @link.setter
     def link(self, profile: LinkProfile) -> None:
-        self.params = replace(self.params, link=profile)
+        self.params = replace(
+            self.params, link=profile, link_table=self.network.link_table(profile)
+        )
+
+    def apply_network_fault(self, fault: NetworkFault) -> None:
+        """Loss, delay, jitter or bursts on some links, a partition, or heal (world/faults.py);
+        from the next frame on.  KeyError, changing nothing, for a robot outside the swarm."""
+        self.network.apply(fault)
+        self.params = replace(self.params, link_table=self.network.link_table(self.link))
 
     def sense(self) -> list[SenseMessage]:
         """What every robot's pins see now; fixes and sonar refresh at their own rates."""
@@ -279,6 +294,7 @@ class WorldEngine:
             "sonar_echo_times_s": encode_array(echoes),
             "fixes_cut": encode_array(self.fixes_cut),
             "link": self.link.model_dump(mode="json", exclude_none=True),
+            "network": self.network.export_state(),
             "metrics": metrics,
         }
 
@@ -348,6 +364,12 @@ class WorldEngine:
         )
         accumulator.import_state(metrics)
         link = LinkProfile.model_validate(state["link"])
+        # A checkpoint from before network faults existed has none.
+        network = (
+            NetworkFaults(self.names)
+            if state.get("network") is None
+            else self.network.restored(state["network"])
+        )
         return {
             "t_ns": int(state["t_ns"]),
             "state": WorldState(bodies=bodies, link_bad=link_bad, contacts=contacts),
@@ -363,6 +385,7 @@ class WorldEngine:
                 tuple(None if np.isnan(t) else float(t) for t in row) for row in echoes
             ],
             "fixes_cut": decode_array(state["fixes_cut"]).astype(bool),
-            "params": replace(self.params, link=link),
+            "params": replace(self.params, link=link, link_table=network.link_table(link)),
+            "network": network,
             "metrics": accumulator,
         }

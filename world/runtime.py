@@ -29,15 +29,32 @@ reports its acting role and leader term (robot_firmware/leadership.py).  The wor
 robot internals and the radio frames are opaque to it; liveliness would say who is up, not who
 leads (a restarted old leader is up and follows).  The acting leader is the live robot that
 reports leading with the highest term (ties: lower index); until another reports, the last one
-stays.  A change is recorded at the reporting robot's own simulation time (`set_leader`), so in
-lockstep the event's time does not depend on delivery; the samples between that time and the
-telemetry's arrival (at most a telemetry period late) are still taken against the old leader.
+stays.  A change is recorded at the reporting robot's own simulation time (`set_leader`, and a
+`leader_change` event), so the event's time does not depend on delivery.  In real time the
+samples between that time and the telemetry's arrival (at most a telemetry period late) are
+still taken against the old leader; in lockstep telemetry stamped t is applied at the tick
+boundary t + `TELEMETRY_DELAY_PERIODS` control periods, after the world has waited for what each
+robot owes by then (world/faults.py `TelemetryGate`), so the metrics change leader at a
+deterministic tick and a replay gives the same summary.json.
+
+The world is the swarm's one fault entry point (world/faults.py).  Faults take effect at a tick
+boundary, before the tick's sense messages go out (in lockstep while the world holds the tick):
+the scenario's `faults:` campaign at the first tick at or after each entry's time, and the
+requests of the admin verb `admin/world/fault`, whose queries are held until the next
+boundary.  Network faults change the radio medium (per-link profiles, partitions); register
+faults are forwarded to the robot's `fault` verb; process faults to the launcher's verbs.
+Every fault, refused or injected, and every consequence (a robot down or up at the barrier's
+leave or join tick, a leader change, this world resumed from a checkpoint) is a `RunEvent`:
+appended durably to `<out>/events.jsonl`, published on `swarm/<swarm>/events`, and summed up
+in summary.json's `run_events`.  The campaign's cursor and the count of events are part of the
+checkpoint; a resumed world cuts events.jsonl back to that count.  Joins and leaves before time
+starts are the swarm booting, not events.
 
 At the end (duration reached, SIGTERM or Ctrl-C) and every few seconds meanwhile the world
 writes `summary.json` with the schema of `swarm sim`, plus radio counters and the robots'
 control-loop timing, atomically.  Admin queryables: `admin/world/status`, `admin/world/net`
 (get the link profile, or set it with a JSON body; an invalid one is refused and changes
-nothing).
+nothing), `admin/world/fault` (one fault of swarm_config/faults.py -> `FaultReply`).
 """
 
 from __future__ import annotations
@@ -100,6 +117,7 @@ from swarm_config.credentials import (
     OptionalCredentialsFile,
     check_identity,
 )
+from swarm_config.faults import EventKind, RunEvent
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario, load_rule_base
 from swarm_config.settings import LayeredSettings, describe_validation_error
@@ -111,14 +129,33 @@ from world.checkpoint import (
     LoadedCheckpoint,
 )
 from world.engine import NS_PER_S, WorldEngine
+from world.faults import (
+    EVENTS_FILE_NAME,
+    EventLog,
+    FaultHub,
+    FaultSchedule,
+    NetworkFault,
+    TelemetryGate,
+)
 from world.lockstep import LockstepBarrier, LockstepPacer
 from world.metrics import FormationLayout, reference_points, sample_errors
-from world.summary import build_summary, write_json_atomically
+from world.summary import build_summary, summarise_events, write_json_atomically
 
 log = logging.getLogger("swarm.world")
 
 MAX_PHYSICS_STEP_NS = 10_000_000
 """Longest exact physics step; contacts are resolved at least this often."""
+TELEMETRY_DELAY_PERIODS = 2
+"""Lockstep: a telemetry sample stamped t is applied at the tick boundary t + this many
+control periods (world/faults.py `TelemetryGate`)."""
+DEFAULT_TELEMETRY_INTERVAL_S = 0.05
+"""A robot's telemetry period until two samples tell its own (robot_firmware/runtime.py)."""
+TELEMETRY_WAIT_S = 2.0
+"""Lockstep: how long a tick boundary waits for a robot's expected telemetry before it stops
+waiting for that robot (until it speaks again)."""
+PEER_TOKEN_GRACE_S = 0.3
+"""Lockstep: after a token change the world itself waited for, how much longer it holds the
+tick, so that every robot has heard of it before the next one (robots act on peers' tokens)."""
 
 
 class WorldConfig(LayeredSettings):
@@ -197,6 +234,10 @@ def new_epoch(avoid: object = None) -> int:
             return epoch
 
 
+def _ignore_reply(_reply: zenoh.Reply) -> None:
+    """The callback of a request whose answer nobody waits for."""
+
+
 class WorldProcess:
     def __init__(self, config: WorldConfig, scenario: Scenario) -> None:
         if config.radio_profile is not None:
@@ -215,7 +256,10 @@ class WorldProcess:
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
+        self._telemetry: queue.SimpleQueue[TelemetryMessage] = queue.SimpleQueue()
         self._admin = AdminQueue()
+        self._fault_admin = AdminQueue()
+        """Queries of the `fault` verb: served only at a tick boundary."""
         self._wake = threading.Event()
         self.stop = threading.Event()
         self.act_counters = WireCounters()
@@ -230,7 +274,24 @@ class WorldProcess:
         self.sense_drops: dict[str, dict[str, int]] = {}
         self.reported_roles: dict[str, tuple[bool, int, float]] = {}
         """Each robot's latest telemetry: whether it leads, its term, its time (s)."""
-        """Each robot's refused sense messages per reason, from its latest telemetry."""
+        self.telemetry_gate: TelemetryGate[TelemetryMessage] = TelemetryGate(
+            self.names,
+            delay_ns=TELEMETRY_DELAY_PERIODS * self.period_ns if config.lockstep else 0,
+            default_interval_ns=round(DEFAULT_TELEMETRY_INTERVAL_S * NS_PER_S),
+        )
+        """When each robot's telemetry is applied (module docstring)."""
+        self.schedule = FaultSchedule(scenario.faults)
+        """The scenario's fault campaign and its cursor."""
+        self.event_log = EventLog(
+            None if config.out_dir is None else config.out_dir / EVENTS_FILE_NAME
+        )
+        self.faults = FaultHub(self.names, self)
+        self._session: zenoh.Session | None = None
+        self._events_pub: zenoh.Publisher | None = None
+        self._unpublished: list[RunEvent] = []
+        self._time_started = False
+        """Joins and leaves before time starts are the swarm booting, not events."""
+        self._checkpoint_event_count = 0
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._clock_started_mono_s: float | None = None
         self.rule_count_total = int(np.asarray(load_rule_base(scenario).rule_count)) * len(
@@ -261,6 +322,11 @@ class WorldProcess:
                     self.tick,
                     self.engine.t_s,
                 )
+        # events.jsonl: what the checkpoint had seen, or nothing for a fresh run.
+        resumed = self.resumed_from is not None
+        self.event_log.start(self._checkpoint_event_count if resumed else None)
+        if resumed:
+            self.record("world_resumed", None, {"tick": self.tick})
 
     # -- checkpoints -----------------------------------------------------------------------
 
@@ -272,6 +338,7 @@ class WorldProcess:
             "epoch": self.epoch,
             "resumes": list(self.resumes),
             "next_sense_ns": self.next_sense_ns,
+            "faults": {"cursor": self.schedule.cursor, "events": self.event_log.count},
             "counters": {
                 "acts_accepted": self.act_counters.accepted,
                 "acts_dropped": self.act_counters.dropped_as_dict(),
@@ -296,6 +363,10 @@ class WorldProcess:
             resumes = [
                 {"t_s": float(r["t_s"]), "tick": int(r["tick"])} for r in state.get("resumes", [])
             ]
+            # A checkpoint from before fault campaigns existed: none injected, no events.
+            faults = state.get("faults", {"cursor": 0, "events": 0})
+            cursor, event_count = faults["cursor"], int(faults["events"])
+            FaultSchedule(self.scenario.faults).restore(cursor)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise CheckpointError(f"the world's part does not fit: {exc!r}") from None
         self.engine.restore_checkpoint(state["engine"])
@@ -307,6 +378,8 @@ class WorldProcess:
         self.resumes = [*resumes, {"t_s": self.engine.t_s, "tick": self.tick}]
         self.epoch = new_epoch(avoid=state.get("epoch"))
         self._next_checkpoint_ns = self.engine.t_ns + self.checkpoint_period_ns
+        self.schedule.restore(cursor)
+        self._checkpoint_event_count = event_count
 
     def _checkpoint_if_due(self) -> None:
         if self._checkpoint_writer is None or self.engine.t_ns < self._next_checkpoint_ns:
@@ -343,11 +416,14 @@ class WorldProcess:
         if telemetry is None or telemetry.robot not in self.index:
             self.malformed_telemetry += 1
         else:
-            self.sense_drops[telemetry.robot] = telemetry.dropped_sense
-            leads = telemetry.role == "leader"
-            self.reported_roles[telemetry.robot] = (leads, telemetry.term or 0, telemetry.t_s)
-            if telemetry.timing is not None:
-                self.timing[telemetry.robot] = telemetry.timing
+            self._telemetry.put(telemetry)
+            if self.config.lockstep:
+                self._wake.set()  # a tick boundary may be waiting for it
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        """Faults wait for the next tick boundary; every other verb is answered between steps."""
+        verb = SwarmKeys.last_chunk(str(query.key_expr))
+        (self._fault_admin if verb == "fault" else self._admin).on_query(query)
 
     # -- queues, drained by the main loop ------------------------------------------------
 
@@ -357,12 +433,7 @@ class WorldProcess:
                 name, alive = self._liveliness.get_nowait()
             except queue.Empty:
                 break
-            if name in self.index:
-                # A robot that (re)joins starts with a clean slate and is waited for from the
-                # next tick on: the sense message of the current tick may have gone out before
-                # it was listening.
-                (self.barrier.join if alive else self.barrier.leave)(name)
-                log.info("robot %s %s", name, "joined" if alive else "left")
+            self._on_liveliness(name, alive)
         while True:
             try:
                 robot, raw, arrival = self._acts.get_nowait()
@@ -392,12 +463,92 @@ class WorldProcess:
                 self.spoofed_frames += 1
                 continue
             frames.append((j, payload))
-        self._follow_leader()
+        self._take_telemetry()
         # Deterministic order within one step: by sender index, then arrival.
         self._held_frames.extend(frames)
         if not self.config.lockstep:
             self._transmit_held()
         self._serve_queries()
+
+    def _on_liveliness(self, name: str, alive: bool) -> None:
+        if name not in self.index:
+            return
+        # A robot that (re)joins starts with a clean slate and is waited for from the next
+        # tick on: the sense message of the current tick may have gone out before it was
+        # listening.  A token seen again while its seat is live (a router restart) only cleans
+        # the slate; an end of a token whose seat is already left (the world dropped it at a
+        # fault's tick) changes nothing.
+        was_live = name in self.live
+        if alive:
+            self._join(name, "liveliness", record=not was_live, owes_now=False)
+        elif was_live:
+            self.leave_seat(name, "liveliness")
+
+    def leave_seat(self, robot: str, cause: str) -> None:
+        """The robot is down from this tick on: not waited for, braked; `robot_down`."""
+        self.barrier.leave(robot)
+        self.telemetry_gate.left(robot)
+        log.info("robot %s left (%s)", robot, cause)
+        if self._time_started:
+            self.record("robot_down", robot, {"tick": self.tick, "cause": cause})
+
+    def join_seat(self, robot: str, cause: str) -> None:
+        """At a tick boundary, before its sense message: the robot is up and waited for from
+        this tick on; `robot_up`."""
+        self._join(robot, cause, record=True, owes_now=True)
+
+    def _join(self, robot: str, cause: str, record: bool, owes_now: bool) -> None:
+        self.barrier.join(robot)
+        if owes_now:
+            # The tick's sense message is still to go out, so the robot hears it; waiting for
+            # its answer also keeps the next tick's frames from reaching it before it is done.
+            self.barrier.seats[robot].owes_from_tick = self.tick
+        self.telemetry_gate.joined(robot, self.engine.t_ns)
+        log.info("robot %s joined (%s)", robot, cause)
+        if record and self._time_started:
+            self.record("robot_up", robot, {"tick": self.tick, "cause": cause})
+
+    def _take_telemetry(self) -> None:
+        """Hand what arrived to the gate; in real time it is applied at once."""
+        while True:
+            try:
+                telemetry = self._telemetry.get_nowait()
+            except queue.Empty:
+                break
+            self.telemetry_gate.arrived(telemetry.robot, round(telemetry.t_s * NS_PER_S), telemetry)
+        if not self.config.lockstep:
+            self._apply_telemetry(None)
+
+    def _apply_telemetry(self, t_ns: int | None) -> None:
+        """Apply the telemetry the gate releases at `t_ns` (None: all), in its order."""
+        for name, telemetry in self.telemetry_gate.release(t_ns):
+            self.sense_drops[name] = telemetry.dropped_sense
+            leads = telemetry.role == "leader"
+            self.reported_roles[name] = (leads, telemetry.term or 0, telemetry.t_s)
+            if telemetry.timing is not None:
+                self.timing[name] = telemetry.timing
+            self._follow_leader()
+        self._follow_leader()
+
+    def _settle_telemetry(self) -> None:
+        """Lockstep, at a tick boundary: wait for the telemetry due by now (each robot's own
+        period tells when), then apply what is due (module docstring)."""
+        deadline = time.monotonic() + TELEMETRY_WAIT_S
+        while (missing := self.telemetry_gate.waiting_for(self.engine.t_ns)) and not (
+            self.stop.is_set()
+        ):
+            if time.monotonic() > deadline:
+                log.warning(
+                    "no telemetry from %s for %.1f s: not waited for until it speaks",
+                    ", ".join(missing),
+                    TELEMETRY_WAIT_S,
+                )
+                self.telemetry_gate.give_up_on(missing)
+                break
+            self._wake.wait(0.005)
+            self._wake.clear()
+            self._drain()
+        self._apply_telemetry(self.engine.t_ns)
 
     def _follow_leader(self) -> None:
         """Take the sample's leader from the telemetry (module docstring)."""
@@ -412,8 +563,12 @@ class WorldProcess:
         term, _, name, t_s = max(claims)
         metrics = self.engine.metrics
         if self.index[name] != metrics.leader_index or term != metrics.leader_term:
+            previous = metrics.leader_index
             metrics.set_leader(self.index[name], term, t_s)
             log.info("robot %s leads (term %d)", name, term)
+            if self.index[name] != previous:
+                detail = {"from": self.names[previous], "term": term}
+                self.record("leader_change", name, detail, t_s=t_s)
 
     def _transmit_held(self) -> None:
         for j, payload in sorted(self._held_frames, key=lambda item: item[0]):
@@ -464,8 +619,13 @@ class WorldProcess:
             session.liveliness().declare_subscriber(
                 keys.alive_all("robot"), self._on_alive, history=True
             )
-            session.declare_queryable(keys.admin("world", "*"), self._admin.on_query)
+            session.declare_queryable(keys.admin("world", "*"), self._on_query)
             self._publishers = {n: session.declare_publisher(keys.sense(n)) for n in self.names}
+            self._session = session
+            self._events_pub = session.declare_publisher(keys.events())
+            for event in self._unpublished:
+                self._events_pub.put(event.model_dump_json().encode())
+            self._unpublished.clear()
             clock_pub = session.declare_publisher(keys.clock)
             truth_pub = session.declare_publisher(keys.truth)
             token = session.liveliness().declare_token(keys.alive("world", "world"))
@@ -490,6 +650,7 @@ class WorldProcess:
                         self._checkpoint_writer.submit(self.tick, self.checkpoint_state())
                     self._checkpoint_writer.close()
                 self.write_summary(final=True)
+                self._session = self._events_pub = None
                 token.undeclare()
         return 0
 
@@ -511,6 +672,7 @@ class WorldProcess:
             self._wake.wait(0.05)
             self._wake.clear()
         self.barrier.start()
+        self._time_started = True
         self._clock_started_mono_s = time.monotonic()
         self._clock_started_sim_ns = self.engine.t_ns
         next_summary = time.monotonic() + self.config.summary_every_s
@@ -518,6 +680,7 @@ class WorldProcess:
         while not self.stop.is_set() and (end is None or self.tick < end):
             pacer.before_tick(self.engine.t_ns)
             self._drain()
+            self._tick_boundary()
             self._publish_sense(lockstep=True, delivered=self._deliver_radio(session))
             clock_pub.put(
                 encode_clock(
@@ -549,6 +712,7 @@ class WorldProcess:
         end = self._end_tick()
         # A resumed world carries on from the checkpoint's time.
         start = time.monotonic_ns() - self.engine.t_ns
+        self._time_started = True
         self._clock_started_mono_s = time.monotonic()
         self._clock_started_sim_ns = self.engine.t_ns
         next_summary = time.monotonic() + self.config.summary_every_s
@@ -577,6 +741,7 @@ class WorldProcess:
                 now_sim = time.monotonic_ns() - start
                 if now_sim >= self.next_sense_ns:
                     advance_to(self.next_sense_ns)
+                    self._tick_boundary()
                     self._publish_sense(lockstep=False, delivered=self._deliver_radio(session))
                     clock_pub.put(
                         encode_clock(
@@ -690,6 +855,7 @@ class WorldProcess:
         }
         summary["malformed_telemetry"] = self.malformed_telemetry
         summary["world_resumes"] = list(self.resumes)
+        summary["run_events"] = summarise_events(self.event_log.events)
         return summary
 
     def write_summary(self, final: bool = False) -> None:
@@ -707,10 +873,123 @@ class WorldProcess:
 
     def admin_handlers(self) -> dict[str, Handler]:
         """The world's admin verbs, served between steps."""
-        return {"net": self._net_request, "status": lambda _body: self._status()}
+        return {
+            "net": self._net_request,
+            "status": lambda _body: self._status(),
+            "fault": self.faults.request,
+        }
 
     def _serve_queries(self) -> None:
         self._admin.serve(self.admin_handlers())
+
+    # -- faults (world/faults.py): the hub's port --------------------------------------------
+
+    def _tick_boundary(self) -> None:
+        """Between two ticks, before the next sense message: telemetry due by now is applied
+        (lockstep), then the campaign's faults due now, then the `fault` requests that came,
+        then what they hold the tick for (module docstring)."""
+        if self.config.lockstep:
+            self._settle_telemetry()
+        while (entry := self.schedule.next_due(self.engine.t_ns)) is not None:
+            log.info("campaign: %s at t = %.3f s", entry.fault.fault, self.engine.t_s)
+            self.faults.inject(entry.fault, "schedule")
+        self._fault_admin.serve(self.admin_handlers())
+        self.faults.settle()
+
+    @property
+    def lockstep(self) -> bool:
+        return self.config.lockstep
+
+    def apply_network_fault(self, fault: NetworkFault) -> None:
+        self.engine.apply_network_fault(fault)
+        log.info("network fault: %s", fault.model_dump_json(exclude_none=True))
+
+    def ask(self, target: str, verb: str, body: bytes, timeout_s: float) -> bytes | None:
+        """One admin request to another process, answered while this world serves its own
+        queries; None without an answer."""
+        if self._session is None:
+            return None
+        replies: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+
+        def on_reply(reply: zenoh.Reply) -> None:  # a zenoh callback: queue and return
+            if reply.ok is not None:
+                replies.put(bytes(reply.ok.payload.to_bytes()))
+
+        self._session.get(
+            self.keys.admin(target, verb),
+            zenoh.handlers.Callback(on_reply, lambda: replies.put(None)),
+            payload=body,
+            timeout=timeout_s,
+        )
+        deadline = time.monotonic() + timeout_s + 1.0
+        while time.monotonic() < deadline and not self.stop.is_set():
+            try:
+                return replies.get(timeout=0.01)
+            except queue.Empty:
+                self._serve_queries()
+        return None
+
+    def send(self, target: str, verb: str, body: bytes) -> None:
+        if self._session is not None:
+            self._session.get(
+                self.keys.admin(target, verb),
+                zenoh.handlers.Callback(_ignore_reply),
+                payload=body,
+                timeout=5.0,
+            )
+
+    def await_tokens(self, wanted: dict[str, bool], timeout_s: float) -> set[str]:
+        seen: set[str] = set()
+        deadline = time.monotonic() + timeout_s
+        while len(seen) < len(wanted) and time.monotonic() < deadline and not self.stop.is_set():
+            try:
+                name, alive = self._liveliness.get(timeout=0.01)
+            except queue.Empty:
+                self._serve_queries()
+                continue
+            if name in wanted:
+                # The wanted edge, or the other one before it (the old process's end before a
+                # restart): the hub takes care of the seat.
+                if alive == wanted[name]:
+                    seen.add(name)
+            else:
+                self._on_liveliness(name, alive)
+        if seen:
+            self._wait_serving_queries(PEER_TOKEN_GRACE_S)
+        return seen
+
+    def checkpoint_now(self) -> bool:
+        if self.checkpoints is None:
+            return False
+        if self._checkpoint_writer is not None:
+            self._checkpoint_writer.flush()
+        self.checkpoints.save(self.tick, self.checkpoint_state())
+        return True
+
+    def hold(self, timeout_s: float) -> None:
+        self._wait_serving_queries(timeout_s)
+
+    def record(
+        self,
+        kind: EventKind,
+        subject: str | None,
+        detail: dict[str, Any],
+        t_s: float | None = None,
+    ) -> RunEvent:
+        """An event at simulation time `t_s` (default: now): into events.jsonl, durably, and
+        onto `swarm/<swarm>/events`."""
+        event = RunEvent(
+            t_s=self.engine.t_ns / NS_PER_S if t_s is None else t_s,
+            kind=kind,
+            subject=subject,
+            detail=detail,
+        )
+        self.event_log.append(event)
+        if self._events_pub is None:
+            self._unpublished.append(event)
+        else:
+            self._events_pub.put(event.model_dump_json().encode())
+        return event
 
     def _status(self) -> WorldStatusReply:
         return WorldStatusReply(

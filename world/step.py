@@ -41,7 +41,7 @@ from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario
 from swarm_config.sensors import PositioningParams, SonarParams
 from world.physics import BodyState, encoder_counts, resolve_contacts, step_bodies
-from world.radio import draw_links
+from world.radio import LinkTable, draw_links
 from world.sensors import pose_fix, sonar_gaps
 
 FloatArray = NDArray[np.float64]
@@ -63,6 +63,9 @@ class WorldParams:
     """(M, 2)"""
     obstacle_radii_m: FloatArray
     """(M,)"""
+    link_table: LinkTable | None = None
+    """Per-link profiles and cut links while a network fault is active (world/faults.py);
+    None: every link has the profile `link`."""
 
     @classmethod
     def from_scenario(
@@ -220,7 +223,8 @@ def broadcast(
     """The fate of one frame from each of `senders` (S,) on its links to every robot.
 
     One draw per link (sender x receiver), self-links included so that the draws do not depend
-    on who the sender is; a link's burst state moves only when a frame crosses it.
+    on who the sender is; a link's burst state moves only when a frame crosses it.  With a
+    network fault active, each link has its own profile (`params.link_table`).
     """
     if senders.size == 0:
         empty = np.zeros(noise.batch_shape + (0, state.robot_count))
@@ -230,7 +234,8 @@ def broadcast(
     if params.link.range_m is not None:
         d = positions[..., senders, None, :] - positions[..., None, :, :]
         length_m = np.hypot(d[..., 0], d[..., 1])
-    draw = draw_links(params.link, state.link_bad[..., senders, :], length_m, noise.radio)
+    links = params.link if params.link_table is None else params.link_table.rows(senders)
+    draw = draw_links(links, state.link_bad[..., senders, :], length_m, noise.radio)
     link_bad = state.link_bad.copy()
     link_bad[..., senders, :] = draw.in_bad_state
     not_self = np.arange(state.robot_count) != senders[:, None]

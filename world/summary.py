@@ -4,6 +4,9 @@ The fitness of eq. 16 (``fitness_snr_db``) is computed from ``mean_abs_error_sum
 average of the summed absolute pose errors over t >= ``metrics.fitness_window_start_s``
 (default 0: the whole run), and the rule count, with the weights of the scenario's ``fitness``.
 
+The world process adds `run_events` (`summarise_events`): its events.jsonl summed up (counts
+per kind, faults injected, failovers and rejoins with their times).
+
 Only simulated quantities go in, never wall-clock figures, so equal seeds give equal files.
 Files are written atomically (temporary file, then rename): a killed process leaves either the
 old file or the new one, never half of one.
@@ -14,10 +17,13 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 
+from swarm_config.faults import EventKind, RunEvent
 from swarm_config.scenario import Scenario
 from world.metrics import fitness_snr
 
@@ -78,6 +84,57 @@ def build_summary(
     if comparison is not None:
         summary["comparison"] = comparison
     return summary
+
+
+def summarise_events(events: Sequence[RunEvent]) -> dict[str, object]:
+    """The `run_events` section of a world's summary.json, from its `events.jsonl`.
+
+    counts per kind (every kind present); faults injected per fault name; each failover (a
+    `leader_change`) with the time since the old leader was last seen down (None when it was
+    not, e.g. after a partition); each rejoin (`robot_up` after a `robot_down` of that robot)
+    with the time it was down."""
+    counts = {kind: 0 for kind in get_args(EventKind)}
+    injected: dict[str, int] = {}
+    down_since: dict[str, float] = {}
+    failovers: list[dict[str, object]] = []
+    rejoins: list[dict[str, object]] = []
+    for event in events:
+        counts[event.kind] += 1
+        if event.kind == "fault_injected":
+            name = str(event.detail.get("fault", {}).get("fault", "?"))
+            injected[name] = injected.get(name, 0) + 1
+        elif event.kind == "robot_down" and event.subject is not None:
+            down_since[event.subject] = event.t_s
+        elif event.kind == "robot_up" and event.subject in down_since:
+            down_s = down_since.pop(event.subject)
+            rejoins.append(
+                {
+                    "robot": event.subject,
+                    "down_t_s": down_s,
+                    "up_t_s": event.t_s,
+                    "down_for_s": round(event.t_s - down_s, 9),
+                }
+            )
+        elif event.kind == "leader_change":
+            old = event.detail.get("from")
+            old_down_s = down_since.get(old) if isinstance(old, str) else None
+            failovers.append(
+                {
+                    "t_s": event.t_s,
+                    "from": old,
+                    "to": event.subject,
+                    "term": event.detail.get("term"),
+                    "after_leader_down_s": None
+                    if old_down_s is None
+                    else round(event.t_s - old_down_s, 9),
+                }
+            )
+    return {
+        "counts": counts,
+        "faults_injected": dict(sorted(injected.items())),
+        "failovers": failovers,
+        "rejoins": rejoins,
+    }
 
 
 def _clean(value: object) -> object:

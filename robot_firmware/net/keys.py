@@ -6,6 +6,7 @@ swarm/<swarm>/radio/tx/<robot>      robot -> world    one broadcast frame (opaqu
 swarm/<swarm>/radio/rx/<robot>      world -> robot    frames delivered to that robot
 swarm/<swarm>/clock                 world -> all      simulation time, lockstep ticks
 swarm/<swarm>/truth                 world -> viewers  poses, metrics
+swarm/<swarm>/events                world -> viewers  faults and their consequences (RunEvent)
 swarm/<swarm>/telemetry/<robot>     robot -> viewers  estimate, desired pose, gains
 swarm/<swarm>/alive/<role>/<name>   liveliness token of each live process
 swarm/<swarm>/admin/<target>/<verb> queryables (status, regs, net, params)
@@ -76,6 +77,10 @@ class SwarmKeys:
     @property
     def truth(self) -> str:
         return f"{self.root}/truth"
+
+    def events(self) -> str:
+        """The run's events (swarm_config/faults.py `RunEvent`), as the world records them."""
+        return f"{self.root}/events"
 
     def telemetry(self, robot: str) -> str:
         return f"{self.root}/telemetry/{robot}"

@@ -16,6 +16,8 @@ JSON ones are here:
 | `admin/world/status`                  | world     | `WorldStatusReply`                     |
 | `admin/world/net`                     | world     | `NetProfileRequest` or a partial       |
 |                                       |           | `LinkProfile` -> `NetReply`            |
+| `admin/world/fault`                   | world     | one fault (swarm_config/faults.py) ->  |
+|                                       |           | `FaultReply`                           |
 | `admin/launcher/status`               | launcher  | `LauncherStatusReply`                  |
 | `admin/launcher/kill`                 | launcher  | `ProcessRequest` -> `KillReply`        |
 | `admin/launcher/restart`              | launcher  | `ProcessRequest` -> `RestartReply`     |
@@ -36,7 +38,7 @@ from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-from swarm_config.faults import RegisterFault
+from swarm_config.faults import RegisterFault, RunEvent
 from swarm_config.radio import LinkProfile
 
 Pose = tuple[float, float, float]
@@ -203,6 +205,8 @@ class AdminRefusal(enum.StrEnum):
     """The register access was refused by the bus."""
     HANDLER_FAILED = "handler_failed"
     """The handler raised: a bug, answered by the dispatcher's safety net."""
+    UNREACHABLE = "unreachable"
+    """The process a request is forwarded to is not up, or did not answer in time."""
 
 
 def refusal_of(error: ValidationError) -> AdminRefusal:
@@ -354,6 +358,15 @@ class NetReply(AdminOk):
     profile: LinkProfile
 
 
+class FaultReply(AdminOk):
+    """`admin/world/fault`: the fault took effect at a tick boundary; `event` is what the run
+    recorded (a line of `events.jsonl`), `reply` the answer of the robot or launcher it was
+    forwarded to, if any."""
+
+    event: RunEvent
+    reply: dict[str, object] | None = None
+
+
 # -- admin: launcher ----------------------------------------------------------------------------
 
 
@@ -411,6 +424,7 @@ AdminReply = (
     | RegisterFaultsReply
     | WorldStatusReply
     | NetReply
+    | FaultReply
     | LauncherStatusReply
     | KillReply
     | RestartReply

@@ -35,6 +35,9 @@ write, `params` with a body, `net set`, the launcher's `kill` and `restart`) are
 operator's alone. An ACL rule sees a query's key, not its body, so it cannot tell `regs` read
 from `regs` write on the same key; since no identity but the operator needs to ask anything,
 no split of the verbs' keys is needed. (A read-only monitoring identity would need one.)
+The one exception is the world, the swarm's fault hub: it forwards the faults it is sent to a
+robot's `admin/N/fault` and to the launcher's `kill`, `stop`, `cont` and `restart`, so it may
+query exactly those keys. It also publishes the run's `events`, which the dashboard reads.
 
 Robots and the world may also receive every subscriber declaration of the swarm
 (`declare_subscriber` egress on `swarm/<swarm>/**`): a Zenoh publisher sends only when it
@@ -177,11 +180,18 @@ def identity_grants(
     _token_watcher(world, keys.alive_all("robot"))
     _server(world, keys.admin(WORLD, "*"))
     _token(world, keys.alive(WORLD, WORLD))
+    _publisher(world, keys.events())
+    # The fault hub (world/faults.py): register faults go to a robot's `fault` verb, process
+    # faults to the launcher's verbs; the world hears their answers.
+    forwarded = [keys.admin(name, "fault") for name in robots]
+    forwarded += [keys.admin(LAUNCHER, verb) for verb in ("kill", "stop", "cont", "restart")]
+    world.allow("ingress", ("query",), *forwarded)
+    world.allow("egress", ("reply",), *forwarded)
     launcher = grants[LAUNCHER] = Grants()
     _server(launcher, keys.admin(LAUNCHER, "*"))
     _token(launcher, keys.alive(LAUNCHER, LAUNCHER))
     dashboard = grants[DASHBOARD] = Grants()
-    _subscriber(dashboard, keys.truth, keys.telemetry_all)
+    _subscriber(dashboard, keys.truth, keys.telemetry_all, keys.events())
     _token_watcher(dashboard, keys.everything_under("alive"))
     operator = grants[OPERATOR] = Grants()
     operator.allow("ingress", ("query",), keys.everything_under("admin"))
