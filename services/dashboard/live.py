@@ -260,6 +260,7 @@ class DashboardService:
         keys = self.keys
         session.declare_subscriber(keys.truth, self._on_truth)
         session.declare_subscriber(keys.telemetry_all, self._on_telemetry)
+        session.declare_subscriber(keys.events(), self._on_event)
         session.liveliness().declare_subscriber(
             f"{keys.root}/alive/**", self._on_alive, history=True
         )
