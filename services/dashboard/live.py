@@ -217,6 +217,7 @@ class DashboardService:
         self._connected = threading.Event()
         self.counts = {"truth": 0, "telemetry": 0, "event": 0, "liveliness": 0, "rejected": 0}
         self._events_seen: set[str] = set()
+        self._event_lines_read: set[bytes] = set()
         self.rejected: Counter[str] = Counter()
         """Rejected samples per reason: `not_json`, `does_not_fit` (MessageDropReason),
         `non_finite`, `out_of_range` (a number no producer sends), `missing_robots` (a truth
@@ -330,8 +331,9 @@ class DashboardService:
         self._log(recording, update)
 
     def events_from_file(self) -> list[Update]:
-        """The records of every run event already in `<out>/events.jsonl` (none without an
-        out directory or a file); a line that is not an event is counted as rejected."""
+        """The records of every run event in `<out>/events.jsonl` not read before (none
+        without an out directory or a file); a line that is not an event is counted as
+        rejected, once."""
         if self.config.out_dir is None:
             return []
         try:
@@ -340,8 +342,9 @@ class DashboardService:
             return []
         updates: list[Update] = []
         for line in lines:
-            if not line.strip():
+            if not line.strip() or line in self._event_lines_read:
                 continue
+            self._event_lines_read.add(line)
             update = self.event_update(line)
             if isinstance(update, str):
                 self.counts["rejected"] += 1
@@ -392,6 +395,8 @@ class DashboardService:
         """Stream until `stop` is set; 0 on a clean stop, 1 if the session could not open."""
         recording = self._open_recording()
         self._log(recording, self.scene.static_update())
+        for update in self.events_from_file():  # a swarm that ran before, or runs without us
+            self._log(recording, update)
         if on_ready is not None:
             on_ready()
         threading.Thread(target=self._open_session, name="zenoh-connect", daemon=True).start()

@@ -170,6 +170,12 @@ def test_events_already_in_the_run_directory_are_logged_once(
     assert dashboard.event_update(KILL_LEADER.model_dump_json().encode()) is None
     live = dashboard.event_update(LEADER_CHANGE.model_dump_json().encode())
     assert isinstance(live, Update) and live.t_s == LEADER_CHANGE.t_s
+    # Read again after the world appended one: only the new line counts.
+    with (tmp_path / EVENTS_FILE).open("a", encoding="utf-8") as events:
+        events.write(PWM_STUCK.model_dump_json() + "\n")
+    assert [u.t_s for u in dashboard.events_from_file()] == [PWM_STUCK.t_s]
+    assert dashboard.counts["event"] == 3
+    assert dict(dashboard.rejected) == {"not_json": 1, "does_not_fit": 1}
 
 
 def test_no_run_directory_or_no_file_means_no_events(scenario: Scenario, tmp_path: Path) -> None:
