@@ -71,6 +71,9 @@ class GuardSeat:
     held_ns: int = 0
     """Wall time the world spent held for this robot."""
     lapses: int = 0
+    max_blind_ns: int = 0
+    """The longest simulated time ran past the end of the period this robot had answered,
+    its body driven by a command that had not seen it (guard on or off)."""
 
     @property
     def waited_for(self) -> bool:
@@ -92,6 +95,10 @@ class GuardStats:
     """Per robot: wall time the world was held for it (holds for two robots count for both)."""
     lapses: dict[str, int]
     """Per robot: how often it held the world past the limit and was no longer waited for."""
+    max_blind_s: dict[str, float]
+    """Per robot: the longest simulated time ran past the end of the period it had answered
+    while its body was driven (with the guard on, at most the lead, one period, unless the
+    robot was exempt)."""
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -103,6 +110,7 @@ class GuardStats:
             "longest_hold_s": round(self.longest_hold_s, 6),
             "held_for_s": {name: round(s, 6) for name, s in self.held_for_s.items()},
             "lapses": dict(self.lapses),
+            "max_blind_s": {name: round(s, 6) for name, s in self.max_blind_s.items()},
         }
 
 
@@ -140,6 +148,8 @@ class RealTimeGuard:
         self.held_ns = 0
         self.holds = 0
         self.longest_hold_ns = 0
+        self.new_lapses: list[tuple[str, int | None]] = []
+        """Robots passed over since the world last looked, with the tick they had answered."""
 
     # -- the world's side ------------------------------------------------------------------
 
@@ -184,6 +194,7 @@ class RealTimeGuard:
         if horizon is None or wanted_ns <= horizon:
             self.holding = False
             self._sim_ns = max(self._sim_ns, wanted_ns)
+            self._measure_blind_time()
             return self._sim_ns
         # Held: the wall time past the horizon is not simulated time; it moves the offset.
         now_ns = max(horizon, self._sim_ns)
@@ -199,7 +210,15 @@ class RealTimeGuard:
         assert self._hold_started_mono_ns is not None
         self.longest_hold_ns = max(self.longest_hold_ns, mono_ns - self._hold_started_mono_ns)
         self._sim_ns = now_ns
+        self._measure_blind_time()
         return now_ns
+
+    def _measure_blind_time(self) -> None:
+        braked = self.braked()
+        for name, seat in self.seats.items():
+            if seat.live and seat.answered is not None and name not in braked:
+                blind_ns = self._sim_ns - self.tick_time_ns(seat.answered + 1)
+                seat.max_blind_ns = max(seat.max_blind_ns, blind_ns)
 
     def _blockers(self, wanted_ns: int, mono_ns: int) -> list[str]:
         """The waited-for robots that hold the world back from `wanted_ns` now (those whose
@@ -223,6 +242,7 @@ class RealTimeGuard:
                 seat.lapsed = True
                 seat.lapses += 1
                 seat.blocked_since_mono_ns = None
+                self.new_lapses.append((name, seat.answered))
                 continue
             blockers.append(name)
         return blockers
@@ -241,15 +261,20 @@ class RealTimeGuard:
 
     def join(self, name: str) -> None:
         """The robot's token appeared: a clean seat, waited for once it answers in time."""
-        seat = self.seats[name]
-        self.seats[name] = GuardSeat(
-            live=True, exempt=seat.exempt, held_ns=seat.held_ns, lapses=seat.lapses
-        )
+        self.seats[name] = self._clean_seat(name, live=True)
 
     def leave(self, name: str) -> None:
+        self.seats[name] = self._clean_seat(name, live=False)
+
+    def _clean_seat(self, name: str, live: bool) -> GuardSeat:
+        """A new seat that keeps the old one's exemption and counters."""
         seat = self.seats[name]
-        self.seats[name] = GuardSeat(
-            live=False, exempt=seat.exempt, held_ns=seat.held_ns, lapses=seat.lapses
+        return GuardSeat(
+            live=live,
+            exempt=seat.exempt,
+            held_ns=seat.held_ns,
+            lapses=seat.lapses,
+            max_blind_ns=seat.max_blind_ns,
         )
 
     def exempt(self, name: str, on: bool) -> None:
@@ -295,6 +320,7 @@ class RealTimeGuard:
             longest_hold_s=self.longest_hold_ns / NS_PER_S,
             held_for_s={n: s.held_ns / NS_PER_S for n, s in self.seats.items()},
             lapses={n: s.lapses for n, s in self.seats.items()},
+            max_blind_s={n: s.max_blind_ns / NS_PER_S for n, s in self.seats.items()},
         )
 
 

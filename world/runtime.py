@@ -6,9 +6,15 @@ the other robots' `radio/rx/<robot>` after the link profile's delay (or drops th
 publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what arrives.
 
 Clock modes:
-* real time (default): simulation time is wall time; the physics is integrated exactly from
-  event to event (duty change, frame due, sense due), sense messages go out every control
-  period; a body whose last act message is older than `act_timeout_ms` is braked;
+* real time (default): simulation time is wall time, except that the starvation guard
+  (world/realtime_guard.py) holds it back so that it never runs more than one control period
+  beyond the period the slowest live robot has answered (its act messages carry the tick of
+  the newest sense message it had): a starved host slows the run down (real-time factor < 1)
+  instead of letting robots drive blind, and a frozen robot holds it for at most
+  `starvation_hold_limit_s`.  The physics is integrated exactly from event to event (duty
+  change, frame due, sense due), sense messages go out every control period (repeated, with
+  no new fix, while the time is held); a body whose last act message is older than
+  `act_timeout_ms` of simulated time, or that the guard stopped waiting for, is braked;
 * lockstep: per control period the world sends every robot its sense message with the tick
   number and waits until every *live* robot (liveliness token present) has answered that tick,
   then advances the physics by one period.  A robot that disappears leaves the barrier at once
@@ -105,6 +111,7 @@ from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endp
 from robot_firmware.net.wire import (
     ActMessage,
     ClockMessage,
+    SenseMessage,
     WireCounters,
     WireDropReason,
     encode_clock,
@@ -139,6 +146,7 @@ from world.faults import (
 )
 from world.lockstep import LockstepBarrier, LockstepPacer
 from world.metrics import FormationLayout, reference_points, sample_errors
+from world.realtime_guard import RealTimeGuard
 from world.summary import build_summary, summarise_events, write_json_atomically
 
 log = logging.getLogger("swarm.world")
@@ -181,6 +189,13 @@ class WorldConfig(LayeredSettings):
     max_speed: PositiveFloat | None = None
     """Lockstep only: at most this many simulated seconds per wall second (None: as fast as
     the robots answer)."""
+    starvation_guard: bool = True
+    """Real time: simulated time never runs more than a control period beyond the period the
+    slowest live robot has answered; the run slows down instead (world/realtime_guard.py).
+    Off: simulated time is the wall clock, whatever the robots do."""
+    starvation_hold_limit_s: float = Field(default=0.5, gt=0.0, le=1.0)
+    """Real time: the longest the world waits for one robot before it goes on without it
+    (braking its body): at most the robots' liveliness lease (1 s)."""
     credentials: OptionalCredentialsFile = Field(default=None, repr=False)
     """The world's router user and password (swarm_config/credentials.py), from the file
     named by --credentials or $SWARM_CREDENTIALS_FILE; `swarm world` refuses to start
@@ -194,6 +209,7 @@ class WorldConfig(LayeredSettings):
         "zenoh_config": "ZENOH_CONFIG",
         "radio_profile": "SWARM_RADIO_PROFILE",
         "credentials": CREDENTIALS_FILE_ENV,
+        "starvation_guard": "SWARM_STARVATION_GUARD",
     }
     ENV_PARSERS: ClassVar[Mapping[str, Callable[[str], object]]] = {"connect": split_endpoints}
 
@@ -234,6 +250,11 @@ def new_epoch(avoid: object = None) -> int:
             return epoch
 
 
+def _overloaded_on_purpose(telemetry: TelemetryMessage) -> bool:
+    """Whether the robot reports a `tick_slow` register fault (a deliberate CPU overload)."""
+    return any(label.split("(", 1)[0] == "tick_slow" for label in telemetry.register_faults)
+
+
 def _ignore_reply(_reply: zenoh.Reply) -> None:
     """The callback of a request whose answer nobody waits for."""
 
@@ -252,7 +273,19 @@ class WorldProcess:
         self.period_ns = round(scenario.controller_params().control_period_s * NS_PER_S)
         self.duty = np.zeros((len(self.names), 4))
         self.act_seen_mono_ns = np.full(len(self.names), -(10**18), dtype=np.int64)
+        self.act_seen_sim_ns = np.full(len(self.names), -(10**18), dtype=np.int64)
+        """Simulation time at which each robot's newest act message was applied."""
         self.barrier = LockstepBarrier(self.names)
+        self.guard = RealTimeGuard(
+            self.names,
+            self.period_ns,
+            round(config.starvation_hold_limit_s * NS_PER_S),
+            enabled=config.starvation_guard and not config.lockstep,
+        )
+        """Real time: holds simulated time back for starved robots (world/realtime_guard.py)."""
+        self._sense_sent: dict[str, SenseMessage] = {}
+        self._sense_sent_mono_ns = 0
+        """The newest sense messages and when they went out (repeated while time is held)."""
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
@@ -487,6 +520,7 @@ class WorldProcess:
     def leave_seat(self, robot: str, cause: str) -> None:
         """The robot is down from this tick on: not waited for, braked; `robot_down`."""
         self.barrier.leave(robot)
+        self.guard.leave(robot)
         self.telemetry_gate.left(robot)
         log.info("robot %s left (%s)", robot, cause)
         if self._time_started:
@@ -503,6 +537,7 @@ class WorldProcess:
             # The tick's sense message is still to go out, so the robot hears it; waiting for
             # its answer also keeps the next tick's frames from reaching it before it is done.
             self.barrier.seats[robot].owes_from_tick = self.tick
+        self.guard.join(robot)
         self.telemetry_gate.joined(robot, self.engine.t_ns)
         log.info("robot %s joined (%s)", robot, cause)
         if record and self._time_started:
@@ -527,6 +562,8 @@ class WorldProcess:
             self.reported_roles[name] = (leads, telemetry.term or 0, telemetry.t_s)
             if telemetry.timing is not None:
                 self.timing[name] = telemetry.timing
+            # A deliberate overload (`tick_slow`) is a fault to watch, not starvation to hide.
+            self.guard.exempt_if(name, _overloaded_on_purpose(telemetry))
             self._follow_leader()
         self._follow_leader()
 
@@ -577,8 +614,10 @@ class WorldProcess:
 
     def _apply_act(self, i: int, act: ActMessage, arrival_mono_ns: int) -> None:
         self.barrier.act(self.names[i], act.tick, act.radio_frames)
+        self.guard.answer(self.names[i], act.tick)
         self.duty[i] = np.where(act.enabled, act.duty, 0.0)
         self.act_seen_mono_ns[i] = arrival_mono_ns
+        self.act_seen_sim_ns[i] = self.engine.t_ns
 
     def _publish_sense(self, lockstep: bool, delivered: list[int]) -> None:
         for i, (name, message) in enumerate(zip(self.names, self.engine.sense(), strict=True)):
@@ -591,6 +630,16 @@ class WorldProcess:
                 epoch=self.epoch,
             )
             self._publishers[name].put(encode_sense(message))
+            self._sense_sent[name] = message
+        self._sense_sent_mono_ns = time.monotonic_ns()
+
+    def _repeat_sense(self) -> None:
+        """Real time, while the guard holds the time: the newest sense messages again (no new
+        fix, no frames announced), so the robots know the world is there and wait
+        (robot_firmware/tick_scheduler.py)."""
+        for name, message in self._sense_sent.items():
+            self._publishers[name].put(encode_sense(replace(message, fix=None, radio_frames=0)))
+        self._sense_sent_mono_ns = time.monotonic_ns()
 
     def _deliver_radio(self, session: zenoh.Session) -> list[int]:
         delivered = [0] * len(self.names)
@@ -603,9 +652,14 @@ class WorldProcess:
         live = self.live
         return np.array([name not in live for name in self.names])
 
-    def _braked_duty(self, now_mono_ns: int) -> np.ndarray:
-        stale = now_mono_ns - self.act_seen_mono_ns > self.config.act_timeout_ms * 1e6
-        return np.where((stale | self._dead())[:, None], 0.0, self.duty)
+    def _braked_duty(self) -> np.ndarray:
+        """Zero for a dead robot, one whose newest act is older than the act time-out in
+        simulated time (the world's held time does not age it), and one the starvation guard
+        stopped waiting for."""
+        stale = self.engine.t_ns - self.act_seen_sim_ns > self.config.act_timeout_ms * 1e6
+        braked = self.guard.braked()
+        lapsed = np.array([name in braked for name in self.names])
+        return np.where((stale | self._dead() | lapsed)[:, None], 0.0, self.duty)
 
     # -- main loop -------------------------------------------------------------------------
 
@@ -706,12 +760,16 @@ class WorldProcess:
     def _run_realtime(
         self, session: zenoh.Session, clock_pub: zenoh.Publisher, truth_pub: zenoh.Publisher
     ) -> None:
-        """Simulation time is wall time since start.  The physics is integrated exactly from
-        event to event (an act changes a duty, a frame falls due, a sense message is due):
-        `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost."""
+        """Simulation time is wall time since start, held back by the starvation guard
+        (world/realtime_guard.py): never more than a control period beyond the period the
+        slowest live robot has answered.  While it is held, the newest sense messages are
+        repeated every period.  The physics is integrated exactly from event to event (an act
+        changes a duty, a frame falls due, a sense message is due): `step_bodies` is exact
+        for a held duty, so this equals a 1 kHz loop without its cost."""
         end = self._end_tick()
+        guard = self.guard
         # A resumed world carries on from the checkpoint's time.
-        start = time.monotonic_ns() - self.engine.t_ns
+        guard.start(self.tick, self.next_sense_ns, self.engine.t_ns, time.monotonic_ns())
         self._time_started = True
         self._clock_started_mono_s = time.monotonic()
         self._clock_started_sim_ns = self.engine.t_ns
@@ -720,11 +778,10 @@ class WorldProcess:
         def advance_to(sim_ns: int) -> None:
             while self.engine.t_ns < sim_ns:
                 step = min(MAX_PHYSICS_STEP_NS, sim_ns - self.engine.t_ns)
-                mono = start + self.engine.t_ns
-                self.engine.advance(self._braked_duty(mono), step)
+                self.engine.advance(self._braked_duty(), step)
 
         def catch_up(arrival_mono_ns: int) -> None:
-            advance_to(min(arrival_mono_ns, time.monotonic_ns()) - start)
+            advance_to(guard.sim_time_ns(min(arrival_mono_ns, time.monotonic_ns())))
 
         self._catch_up = catch_up
         try:
@@ -733,12 +790,17 @@ class WorldProcess:
                 frame_due = self.engine.next_frame_due_ns()
                 if frame_due is not None:
                     due = min(due, frame_due)
-                now_sim = time.monotonic_ns() - start
+                mono = time.monotonic_ns()
+                now_sim = guard.sim_time_ns(mono)
                 if now_sim < due:
-                    self._wake.wait((due - now_sim) / NS_PER_S)
+                    wait_ns = due - now_sim
+                    if guard.holding:  # until an act comes, or the sense messages are repeated
+                        wait_ns = min(wait_ns, self._sense_sent_mono_ns + self.period_ns - mono)
+                    self._wake.wait(max(wait_ns, 0) / NS_PER_S)
                     self._wake.clear()
                 self._drain()
-                now_sim = time.monotonic_ns() - start
+                mono = time.monotonic_ns()
+                now_sim = guard.sim_time_ns(mono)
                 if now_sim >= self.next_sense_ns:
                     advance_to(self.next_sense_ns)
                     self._tick_boundary()
@@ -750,6 +812,7 @@ class WorldProcess:
                             )
                         )
                     )
+                    guard.published(self.tick)
                     self.barrier.advance()
                     self.next_sense_ns += self.period_ns
                     self._publish_truth(truth_pub)
@@ -757,6 +820,18 @@ class WorldProcess:
                 else:
                     advance_to(now_sim)
                     self._deliver_radio(session)
+                    if guard.holding and mono >= self._sense_sent_mono_ns + self.period_ns:
+                        self._repeat_sense()
+                while guard.new_lapses:
+                    name, answered = guard.new_lapses.pop(0)
+                    log.warning(
+                        "robot %s held the time for %.1f s (answered tick %s of %d): going on "
+                        "without it, its body braked, until it catches up",
+                        name,
+                        self.config.starvation_hold_limit_s,
+                        answered,
+                        self.tick - 1,
+                    )
                 if time.monotonic() >= next_summary:
                     next_summary += self.config.summary_every_s
                     self.write_summary()
@@ -844,6 +919,7 @@ class WorldProcess:
         summary["clock_mode"] = "lockstep" if self.config.lockstep else "real_time"
         if not self.config.lockstep:  # a lockstep summary holds no wall-clock figure
             summary["real_time_factor"] = self.real_time_factor()
+            summary["starvation_guard"] = self.guard.stats().as_dict()
         summary["control_timing"] = {
             name: None if (timing := self.timing.get(name)) is None else timing.model_dump()
             for name in self.names

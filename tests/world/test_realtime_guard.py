@@ -240,3 +240,23 @@ def test_the_real_time_factor_window_starts_again_when_the_clock_jumps_back() ->
     window.add(1.0, 31.0)
     assert window.add(2.0, 12.0) is None  # a world resumed from an older checkpoint
     assert window.add(3.0, 13.0) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_the_blind_time_of_a_starved_robot_is_measured_and_bounded_by_the_guard(
+    enabled: bool,
+) -> None:
+    """robot2 answers nothing for 200 ms of wall time, then catches up: with the guard the
+    physics ran at most one period past its answered period; without, 200 ms."""
+    guard = running_guard(enabled)
+    run_world(guard, 0, 200, answering=("robot1", "robot3"))
+    newest = guard.seats["robot1"].answered
+    assert newest is not None
+    guard.answer("robot2", newest)
+    run_world(guard, 200, 300, answering=ROBOTS)
+    blind_s = guard.stats().max_blind_s
+    if enabled:
+        assert blind_s["robot2"] == pytest.approx(PERIOD_NS / 1e9)
+    else:
+        assert blind_s["robot2"] == pytest.approx(0.19, abs=0.002)  # 200 ms - tick 0's period
+    assert blind_s["robot1"] <= PERIOD_NS / 1e9
