@@ -16,11 +16,11 @@ Two clock modes, chosen by the world's sense messages:
   plus the monotonic time since it arrived (at most one period).  The loop's deadlines are
   grid points of simulation time one period apart, mapped to the monotonic clock by the newest
   sense message: a tick that starts more than a period after its deadline, or ends more than
-  a period after it, is a deadline miss, and grid points that passed while a tick ran are
-  skipped (no burst of late ticks).  A real-time tick answers the tick number of the newest
-  sense message (the world's starvation guard reads it from the act message).  A sense message
-  that repeats the newest one (same tick and time: the world holds its time) only says that
-  the world is there.
+  a period after it, is a deadline miss.  Grid points that passed while a tick ran are
+  skipped (no burst of late ticks), but the newest message is always answered.  A real-time
+  tick answers the tick number of the newest sense message (the world's starvation guard reads
+  it from the act message).  A sense message that repeats the newest one (same tick and time:
+  the world holds its time) only says that the world is there.
   When no sense message has arrived for `sense_timeout_ns` (the world died, or this process
   was frozen), the scheduler stops controlling: every period it answers `SafeStop` instead of
   a tick, and the firmware holds the motors off and stops kicking the watchdog.  The first
@@ -252,14 +252,18 @@ class TickScheduler:
 
     def _skip_passed_grid_points(self) -> None:
         """The next tick is due at the first grid point after the last tick ended (as the
-        newest sense message maps that instant to simulation time)."""
-        if self._free_mono_ns is None:
+        newest sense message maps that instant to simulation time), but never later than the
+        grid point of the newest message: that one is answered, late or not (the world may be
+        holding its time for this very answer)."""
+        if self._free_mono_ns is None or self._last is None:
             return
         free_sim_ns = self._world_time_ns(self._free_mono_ns)
         self._free_mono_ns = None
-        if free_sim_ns >= self._due_sim_ns:
-            passed = (free_sim_ns - self._due_sim_ns) // self.period_ns + 1
-            self._due_sim_ns += passed * self.period_ns
+        if free_sim_ns < self._due_sim_ns:
+            return
+        passed = (free_sim_ns - self._due_sim_ns) // self.period_ns + 1
+        newest = (self._last.t_ns - self._due_sim_ns) // self.period_ns
+        self._due_sim_ns += max(min(passed, newest), 0) * self.period_ns
 
     def _safe_stop(self, mono_now_ns: int) -> Wait | SafeStop:
         entered = not self.safe_stopped
@@ -288,5 +292,7 @@ class TickScheduler:
                 late or end_mono_ns > deadline + self.period_ns,
             )
         self._last_tick_sim_ns = tick.sim_time_ns
-        self._due_sim_ns += self.period_ns
+        # The first grid point after the time this tick ran at.
+        ran_periods = max(tick.sim_time_ns - self._due_sim_ns, 0) // self.period_ns
+        self._due_sim_ns += (ran_periods + 1) * self.period_ns
         self._free_mono_ns = end_mono_ns

@@ -183,17 +183,22 @@ def test_a_tick_that_starts_more_than_a_period_late_is_a_deadline_miss() -> None
     assert scheduler.timing.deadline_misses == 1
 
 
-def test_a_loop_far_behind_skips_the_deadlines_it_missed_instead_of_bursting() -> None:
+def test_a_loop_far_behind_answers_the_newest_message_once_instead_of_bursting() -> None:
+    """A tick that took seven periods: the deadlines that passed meanwhile are skipped, but the
+    newest message is answered at once (the world may hold its time for that answer)."""
     scheduler = TickScheduler(PERIOD_NS)
     world = RealTimeWorld(scheduler)
     run_ticks(scheduler, [(0, 1)], world)
-    stalled_end_ms = 10 + 7 * 10  # a stall of several periods
+    stalled_end_ms = 10 + 7 * 10
     run_ticks(scheduler, [(10, stalled_end_ms)], world)
     world.run_until(stalled_end_ms)  # the messages that queued up meanwhile
-    assert isinstance(scheduler.poll(stalled_end_ms * MS + 1, 0), Wait)  # not a burst ...
+    caught_up = scheduler.poll(stalled_end_ms * MS + 1, 0)
+    assert caught_up == RunTick(stalled_end_ms * MS + 1, 8, stalled_end_ms * MS + 1)
+    scheduler.finished(caught_up, (stalled_end_ms + 1) * MS)
+    assert isinstance(scheduler.poll((stalled_end_ms + 2) * MS, 0), Wait)  # no burst ...
     world.run_until(stalled_end_ms + 10)
-    resumed = scheduler.poll((stalled_end_ms + 10) * MS, 0)  # ... the next grid point
-    assert isinstance(resumed, RunTick) and resumed.sim_time_ns == (stalled_end_ms + 10) * MS
+    following = scheduler.poll((stalled_end_ms + 10) * MS, 0)  # ... the next grid point
+    assert isinstance(following, RunTick) and following.sim_time_ns == (stalled_end_ms + 10) * MS
     assert scheduler.timing.deadline_misses == 1
 
 
