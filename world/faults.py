@@ -40,6 +40,8 @@ tested alone (tests/world/test_faults.py); world/runtime.py does the I/O:
   is seen, then joins it at that tick (the `settle` step, after the reply went out).  A fault on
   the world itself (`kill`, `restart`) is recorded and checkpointed first, then the launcher is
   asked and the world holds until it is killed, so a restarted world resumes exactly there.
+  Neither the world's nor the router's `kill`, `restart` or `stop` can be answered (the answer
+  would pass through the process cut off): they are recorded as injected when sent.
 """
 
 from __future__ import annotations
@@ -558,11 +560,12 @@ class FaultHub:
         process = fault_subjects(fault)[0]
         verb = fault.fault
         body = ProcessRequest(process=process).to_json_bytes()
-        if process == "world" and verb in ("kill", "restart", "stop"):
-            # The world cannot hear the answer: it is recorded (and checkpointed) first.
+        if process in ("world", "router") and verb in ("kill", "restart", "stop"):
+            # No answer can come back (it would pass through the process being cut off): the
+            # fault is recorded first, and the world checkpoints before its own end.
             self.settle()
             event = self._record_injected(fault, source)
-            if verb != "stop":
+            if process == "world" and verb != "stop":
                 self.port.checkpoint_now()
                 self._settle.world_death = True
             self.port.send("launcher", verb, body)

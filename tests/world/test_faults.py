@@ -540,7 +540,7 @@ def test_lockstep_stop_and_cont_leave_and_join_at_their_ticks() -> None:
 
 def test_a_launcher_that_does_not_answer_or_refuses_is_a_refusal() -> None:
     port = FakePort()
-    reply = _hub(port).request(_body(fault="kill", process="router"))
+    reply = _hub(port).request(_body(fault="cont", process="router"))
     assert isinstance(reply, AdminError) and reply.reason == AdminRefusal.UNREACHABLE
     assert f"{FORWARD_TIMEOUT_S:.0f} s" in reply.error
     port.answers[("launcher", "kill")] = AdminError(
@@ -567,6 +567,17 @@ def test_restarting_the_world_records_and_checkpoints_before_the_launcher_is_ask
         ("fault_injected", None),
         ("fault_refused", AdminRefusal.UNREACHABLE),
     ]
+
+
+def test_killing_the_router_is_recorded_and_sent_without_waiting_for_an_answer() -> None:
+    """The answer would come back through the router."""
+    port = FakePort()
+    hub = _hub(port)
+    reply = hub.request(_body(fault="kill", process="router"))
+    assert isinstance(reply, FaultReply) and reply.event.subject == "router"
+    hub.settle()
+    assert port.calls == [("send", "launcher", "kill", {"process": "router"})]
+    assert [e.kind for e in port.events] == ["fault_injected"]
 
 
 def test_stopping_the_world_is_recorded_and_sent_without_a_checkpoint() -> None:
