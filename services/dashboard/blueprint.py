@@ -6,7 +6,8 @@ short event log and the fault timeline (one row per kind of run event: faults in
 refused, robots down and up, leader changes, world resumed).
 Right, top to bottom: the leader's tracking error (paper Fig. 12), the followers' formation
 errors (Fig. 13), the PID gains K_P / K_I / K_D in tabs as the fuzzy scheduler moves them, and
-the radio's delivery ratio and latency. Every view runs on the `sim_time` timeline.
+the radio's delivery ratio and latency, and the real-time factor (below 1 while the world holds
+its time for a starved robot). Every view runs on the `sim_time` timeline.
 """
 
 from __future__ import annotations
@@ -71,6 +72,11 @@ def default_blueprint(map_bounds_m: tuple[float, float, float, float]) -> rrb.Bl
                         axis_y=rrb.ScalarAxis(range=(0.0, 1.05)),
                     ),
                     rrb.TimeSeriesView(origin=f"/{entities.LATENCY}", name="Radio latency, ms"),
+                    rrb.TimeSeriesView(
+                        origin=f"/{entities.REAL_TIME_FACTOR}",
+                        name="Real-time factor (sim s per wall s)",
+                        axis_y=rrb.ScalarAxis(range=(0.0, 1.1)),
+                    ),
                 ),
             ),
             column_shares=[5, 4],

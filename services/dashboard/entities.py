@@ -25,6 +25,9 @@ events                           robots, world and launcher joining and leaving,
                                  event of the world (faults injected or refused, robot down and
                                  up, leader changes, world resumed) at its simulation time
 timeline/<kind>                  one marker per run event on its kind's row: the fault timeline
+clock/real_time_factor           simulated seconds per wall second over the last 5 s of wall time
+                                 (truth arrivals; below 1 when the world holds its time for a
+                                 starved robot, world/realtime_guard.py)
 
 Several archetypes share one entity where they are logged together (a robot's body, heading,
 ring and trail), so each flush of the recording makes one chunk per entity, not one per layer.
@@ -54,6 +57,7 @@ LATENCY_CONFIGURED = "radio/latency_ms/configured"
 LATENCY_MEASURED = "radio/latency_ms/measured"
 
 EVENTS = "events"
+REAL_TIME_FACTOR = "clock/real_time_factor"
 TIMELINE_MARKERS = "timeline"
 
 TIMELINE = "sim_time"

@@ -27,6 +27,7 @@ import math
 import queue
 import socket
 import threading
+import time
 import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
@@ -198,6 +199,8 @@ class _Sample:
     key: str
     payload: bytes
     alive: bool = True
+    received_s: float | None = None
+    """Monotonic seconds when the sample arrived (truth: for the real-time factor)."""
 
 
 class DashboardService:
@@ -234,7 +237,8 @@ class DashboardService:
             self.dropped_samples += 1
 
     def _on_truth(self, sample: zenoh.Sample) -> None:
-        self._offer(_Sample("truth", str(sample.key_expr), sample.payload.to_bytes()))
+        payload = sample.payload.to_bytes()
+        self._offer(_Sample("truth", str(sample.key_expr), payload, received_s=time.monotonic()))
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
         self._offer(_Sample("telemetry", str(sample.key_expr), sample.payload.to_bytes()))
@@ -318,7 +322,7 @@ class DashboardService:
         if sample.kind == "event":
             update = self.event_update(sample.payload)
         else:
-            update = self.update_for(sample.kind, sample.payload)
+            update = self.update_for(sample.kind, sample.payload, sample.received_s)
         if isinstance(update, str):
             self.counts["rejected"] += 1
             self.rejected[update] += 1
@@ -368,16 +372,22 @@ class DashboardService:
         self._events_seen.add(identity)
         return self.scene.on_event(event)
 
-    def update_for(self, kind: Literal["truth", "telemetry"], payload: bytes) -> Update | str:
+    def update_for(
+        self,
+        kind: Literal["truth", "telemetry"],
+        payload: bytes,
+        received_s: float | None = None,
+    ) -> Update | str:
         """The records one truth or telemetry sample makes, or why it is rejected (a reason
-        of `rejected`).  Nothing is logged here."""
+        of `rejected`); `received_s`: when a truth sample arrived (monotonic seconds).
+        Nothing is logged here."""
         if kind == "truth":
             truth = parse_message_or_reason(TruthMessage, payload)
             if isinstance(truth, MessageDropReason):
                 return truth.value
             if (problem := _number_problem(truth.model_dump())) is not None:
                 return problem
-            update = self.scene.on_truth(truth)
+            update = self.scene.on_truth(truth, received_s)
             return "missing_robots" if update is None else update
         telemetry = parse_message_or_reason(TelemetryMessage, payload)
         if isinstance(telemetry, MessageDropReason):

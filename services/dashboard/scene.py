@@ -33,6 +33,7 @@ from services.dashboard import entities
 from swarm_config.faults import FAULT_ADAPTER, EventKind, NetFault, RunEvent, fault_subjects
 from swarm_config.scenario import Scenario
 from world.metrics import FormationLayout, reference_points, sample_errors
+from world.realtime_guard import RealTimeFactorWindow
 
 Rgb = tuple[int, int, int]
 
@@ -189,6 +190,7 @@ class SwarmScene:
         trail_spacing_s: float = 0.1,
         trail_period_s: float = 0.25,
         radio_window_s: float = 1.0,
+        real_time_factor_window_s: float = 5.0,
     ) -> None:
         self.scenario = scenario
         self.names = scenario.robot_names
@@ -205,6 +207,7 @@ class SwarmScene:
         }
         self._next_trail_log_s = 0.0
         self._radio = _RadioWindow(radio_window_s)
+        self._real_time_factor = RealTimeFactorWindow(real_time_factor_window_s)
         self._last_t_s: float | None = None
         self.rejected_truth = 0
         self.unknown_robots: set[str] = set()
@@ -281,6 +284,15 @@ class SwarmScene:
                     colors=list(RADIO_COLOURS),
                     names=["since start", "last second"],
                     widths=[2.0, 1.5],
+                ),
+                static=True,
+            ),
+            record(
+                entities.REAL_TIME_FACTOR,
+                rr.SeriesLines(
+                    colors=[REFERENCE_COLOUR],
+                    names=[f"last {self._real_time_factor.span_s:g} s of wall time"],
+                    widths=[2.0],
                 ),
                 static=True,
             ),
@@ -365,8 +377,10 @@ class SwarmScene:
     def _advance_clock(self, t_s: float) -> None:
         self._last_t_s = t_s if self._last_t_s is None else max(self._last_t_s, t_s)
 
-    def on_truth(self, truth: TruthMessage) -> Update | None:
-        """The map, the tracking and formation errors and the radio at truth.t_s."""
+    def on_truth(self, truth: TruthMessage, received_s: float | None = None) -> Update | None:
+        """The map, the tracking and formation errors and the radio at truth.t_s; with the
+        wall time the message arrived at (`received_s`, monotonic seconds), the real-time
+        factor over the last few wall seconds too."""
         missing = [n for n in self.names if n not in truth.robots]
         if missing:
             self.rejected_truth += 1
@@ -455,6 +469,10 @@ class SwarmScene:
                 record(entities.FORMATION_ERRORS, rr.Scalars(position_error_m[followers]))
             )
         records += self._radio_records(truth)
+        if received_s is not None:
+            factor = self._real_time_factor.add(received_s, t_s)
+            if factor is not None:
+                records.append(record(entities.REAL_TIME_FACTOR, rr.Scalars([factor])))
         return Update(t_s, records)
 
     def _label(self, name: str, alive: bool) -> str:

@@ -256,3 +256,18 @@ def test_a_previous_recording_is_kept_under_the_next_free_number(tmp_path: Path)
     assert keep_previous_recording(path) == tmp_path / "dashboard-2.rrd"
     assert not path.exists()
     assert (tmp_path / "dashboard-1.rrd").read_bytes() == b"first"
+
+
+def test_the_real_time_factor_is_logged_from_the_truths_arrival_times(scenario: Scenario) -> None:
+    scene = SwarmScene(scenario, real_time_factor_window_s=5.0)
+    assert entities.REAL_TIME_FACTOR in scene.static_update().paths()
+    first = scene.on_truth(_truth(scenario, 10.0), received_s=100.0)
+    assert first is not None and entities.REAL_TIME_FACTOR not in first.paths()  # no span yet
+    factors = []
+    for k in range(1, 101):  # 10 s of wall time, the world at half speed
+        update = scene.on_truth(_truth(scenario, 10.0 + 0.05 * k), received_s=100.0 + 0.1 * k)
+        factors.append(_scalars(update, entities.REAL_TIME_FACTOR)[0])
+    assert factors[-1] == pytest.approx(0.5)
+    without_arrival = scene.on_truth(_truth(scenario, 16.0))
+    assert without_arrival is not None
+    assert entities.REAL_TIME_FACTOR not in without_arrival.paths()
