@@ -468,8 +468,36 @@ def _print_reply(payload: bytes) -> int:
     return 0 if reply.get("ok") is True else 1
 
 
+WORLD_STATUS_TIMEOUT_S = 1.0
+"""How long `swarm status` waits for the world's line after the launcher's reply."""
+
+
 def _cmd_status(args: argparse.Namespace) -> int:
-    return _print_reply(_ask(args, "launcher", "status", None))
+    code = _print_reply(_ask(args, "launcher", "status", None))
+    _print_world_line(args)
+    return code
+
+
+def _print_world_line(args: argparse.Namespace) -> None:
+    """One line on stderr (stdout stays the launcher's JSON): the world's simulation time,
+    clock mode and real-time factor, which drops below 1 while the world holds its time for
+    a starved robot (world/realtime_guard.py)."""
+    from robot_firmware.net.messages import WorldStatusReply, parse_reply
+
+    quick = argparse.Namespace(
+        **{**vars(args), "timeout": min(args.timeout, WORLD_STATUS_TIMEOUT_S)}
+    )
+    payload = _ask_if_answered(quick, "world", "status", None)
+    reply = None if payload is None else parse_reply(WorldStatusReply, payload)
+    if not isinstance(reply, WorldStatusReply):
+        print(f"world: no answer within {quick.timeout:g} s", file=sys.stderr)
+        return
+    factor = "n/a" if reply.real_time_factor is None else f"{reply.real_time_factor:.2f}"
+    print(
+        f"world: t = {reply.t_s:.1f} s, {reply.clock_mode.replace('_', ' ')}, real-time factor "
+        f"{factor} since start, {len(reply.live)} of {len(reply.robots)} robots live",
+        file=sys.stderr,
+    )
 
 
 def _cmd_kill(args: argparse.Namespace) -> int:

@@ -1,0 +1,55 @@
+"""`swarm status`: the launcher's JSON on stdout, and one line about the world on stderr with
+its real-time factor (services/cli/main.py); the world's reply faked, no network."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import pytest
+
+from services.cli import main as cli
+from swarm_config.scenario import load_scenario
+from world.runtime import WorldConfig, WorldProcess
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+def _args() -> argparse.Namespace:
+    return argparse.Namespace(timeout=3.0, swarm="lab", connect=None, credentials=None)
+
+
+def test_the_status_line_shows_the_worlds_real_time_factor(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    world = WorldProcess(WorldConfig(scenario=PAPER), load_scenario(PAPER))
+    world._clock_started_mono_s = time.monotonic() - 1.0  # time started a second ago ...
+    world.engine.advance(world.duty, 500_000_000)  # ... and 0.5 s of simulation ran
+    status = world._status()
+    assert status.real_time_factor is not None and status.real_time_factor < 0.51
+    asked: list[float] = []
+
+    def answer(args: argparse.Namespace, target: str, verb: str, body: object) -> bytes:
+        asked.append(args.timeout)
+        assert (target, verb) == ("world", "status")
+        return status.to_json_bytes()
+
+    monkeypatch.setattr(cli, "_ask_if_answered", answer)
+    cli._print_world_line(_args())
+    line = capsys.readouterr().err
+    assert asked == [cli.WORLD_STATUS_TIMEOUT_S]
+    assert "t = 0.5 s, real time" in line, line
+    assert f"real-time factor {status.real_time_factor:.2f} since start" in line, line
+    assert "0 of 3 robots live" in line, line
+
+
+def test_the_status_line_says_so_when_the_world_does_not_answer(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(cli, "_ask_if_answered", lambda *_args: None)
+    cli._print_world_line(_args())
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.strip() == "world: no answer within 1 s"
