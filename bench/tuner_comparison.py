@@ -25,8 +25,15 @@ runs in progress (``--fresh`` ignores them; ``--finished-only`` runs nothing and
 seeds already finished by every algorithm). The defaults (5 algorithms, 10 seeds, 600
 evaluations of 30 s, all cores) take about 30 minutes on an idle 2-core machine.
 
+``--ray HOST:PORT`` runs them on a Ray cluster instead, one whole optimiser run per task
+(:meth:`services.tuner.cluster.RayCluster.map`; a run lost with its node is run again), and then
+runs the same runs locally with ``--jobs`` processes: it prints both wall times, measured in
+this invocation, and whether every run gave the same result both ways (``--ray-only`` skips
+the local pass). Runs finished on the cluster go to ``<json>.runs.jsonl`` as above.
+
     .venv/bin/python bench/tuner_comparison.py [--seeds 10] [--budget 600] [--duration 30]
         [--algos ofa,fa,ga,pso,random] [--jobs N] [--json runs/bench/tuner_comparison.json]
+        [--ray HOST:PORT [--ray-only]]
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ import json
 import os
 import statistics
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -44,6 +52,7 @@ import numpy as np
 from machine import machine_lines, machine_record
 from scipy.stats import wilcoxon
 
+from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
 from services.tuner.fitness import evaluate_fitness, make_objective
 from services.tuner.fuzzy_encoding import DIMENSION, encode_default, to_parameters
 from services.tuner.fuzzy_tuning import (
@@ -51,7 +60,7 @@ from services.tuner.fuzzy_tuning import (
     write_convergence_figure,
 )
 from services.tuner.registry import ALGORITHMS
-from swarm_config.scenario import load_scenario
+from swarm_config.scenario import Scenario, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,11 +81,16 @@ class RunRecord:
     history_evaluations: list[int]
     history_best_fitness_db: list[float]
 
+    def result_fields(self) -> dict[str, object]:
+        """Everything but the timings: what a run on the cluster and a local one share."""
+        fields = asdict(self)
+        del fields["wall_time_s"], fields["evaluations_per_s"]
+        return fields
+
 
 def run_one(
-    scenario_path: str, algorithm: str, seed: int, budget: int, duration_s: float
+    scenario: Scenario, algorithm: str, seed: int, budget: int, duration_s: float
 ) -> RunRecord:
-    scenario = load_scenario(Path(scenario_path))
     objective = make_objective(scenario, duration_s=duration_s)
     start = time.perf_counter()
     result = ALGORITHMS[algorithm](objective, DIMENSION, budget, seed)
@@ -134,6 +148,54 @@ def append_finished_run(checkpoint_path: Path, settings: dict[str, object], run:
         os.fsync(stream.fileno())
 
 
+Task = tuple[str, int]
+"""(algorithm, optimiser seed): one run."""
+
+
+def run_locally(
+    scenario: Scenario,
+    pending: list[Task],
+    args: argparse.Namespace,
+    on_finished: Callable[[RunRecord], None],
+    *,
+    own_sessions: bool = False,
+) -> dict[Task, RunRecord]:
+    """The runs on ``args.jobs`` local processes; ``on_finished`` sees each as it ends.
+
+    ``own_sessions`` puts each process in a session of its own, as the processes of each Ray
+    node are in theirs: with the kernel's autogroup scheduling a busy shared machine shares its
+    CPUs between sessions, so the comparison with a cluster on the same machine is then fair.
+    """
+    runs: dict[Task, RunRecord] = {}
+    initializer = os.setsid if own_sessions else None
+    with ProcessPoolExecutor(max_workers=args.jobs, initializer=initializer) as pool:
+        futures = {
+            pool.submit(run_one, scenario, a, s, args.budget, args.duration): (a, s)
+            for a, s in pending
+        }
+        for future in as_completed(futures):
+            run = future.result()
+            runs[futures[future]] = run
+            on_finished(run)
+    return runs
+
+
+def run_on_cluster(
+    cluster: RayCluster,
+    scenario: Scenario,
+    pending: list[Task],
+    args: argparse.Namespace,
+    on_finished: Callable[[RunRecord], None],
+) -> dict[Task, RunRecord]:
+    """The runs as Ray tasks, one whole run each; ``on_finished`` sees each as it ends."""
+    results = cluster.map(
+        run_one,
+        [(scenario, a, s, args.budget, args.duration) for a, s in pending],
+        on_result=lambda index, run: on_finished(run),
+    )
+    return dict(zip(pending, results, strict=True))
+
+
 def best_at(run: RunRecord, evaluations: int) -> float:
     """Best fitness a run had reached after ``evaluations`` evaluations (NaN before any)."""
     spent = np.asarray(run.history_evaluations)
@@ -178,6 +240,16 @@ def main() -> None:
     )
     parser.add_argument("--figure", type=Path, default=None, help="PNG (default: beside JSON)")
     parser.add_argument(
+        "--ray",
+        default=None,
+        metavar="HOST:PORT",
+        help="run on the Ray cluster whose head is at HOST:PORT, then the same runs locally "
+        "for the wall-time comparison",
+    )
+    parser.add_argument(
+        "--ray-only", action="store_true", help="with --ray: skip the local comparison pass"
+    )
+    parser.add_argument(
         "--fresh",
         action="store_true",
         help="ignore runs finished earlier (<json>.runs.jsonl) and run every one again",
@@ -189,6 +261,8 @@ def main() -> None:
         "<json>.runs.jsonl (a partial table while a long comparison is still running)",
     )
     args = parser.parse_args()
+    if args.ray_only and args.ray is None:
+        parser.error("--ray-only needs --ray HOST:PORT")
     algorithms = [a.strip() for a in args.algos.split(",") if a.strip()]
     unknown = [a for a in algorithms if a not in ALGORITHMS]
     if unknown or not algorithms:
@@ -214,23 +288,46 @@ def main() -> None:
     pending = [task for task in tasks if task not in finished]
     if len(pending) < len(tasks):
         print(f"# {len(tasks) - len(pending)} runs taken from {checkpoint_path}", flush=True)
+    cluster = None
+    if args.ray is not None:
+        try:
+            cluster = connect_cluster(args.ray)
+        except ClusterError as exc:
+            parser.error(str(exc))
+
+    def record(run: RunRecord) -> None:
+        append_finished_run(checkpoint_path, settings, run)
+        finished[(run.algorithm, run.seed)] = run
+        print(
+            f"# {len(finished)}/{len(tasks)} {run.algorithm} seed {run.seed}: "
+            f"{run.best_fitness_db:.3f} dB, {run.wall_time_s:.0f} s",
+            flush=True,
+        )
+
+    local_wall_s: float | None = None
+    differing: list[Task] = []
     wall_start = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = {
-            pool.submit(run_one, str(args.scenario), a, s, args.budget, args.duration): (a, s)
-            for a, s in pending
-        }
-        for future in as_completed(futures):
-            run = future.result()
-            append_finished_run(checkpoint_path, settings, run)
-            finished[(run.algorithm, run.seed)] = run
-            print(
-                f"# {len(finished)}/{len(tasks)} {run.algorithm} seed {run.seed}: "
-                f"{run.best_fitness_db:.3f} dB, {run.wall_time_s:.0f} s",
-                flush=True,
-            )
+    if cluster is None:
+        run_locally(scenario, pending, args, record)
+        total_wall_s = time.perf_counter() - wall_start
+        where = f"{args.jobs} processes"
+    else:
+        with cluster:
+            where = cluster.describe()
+            print(f"# {len(pending)} runs on the {where}", flush=True)
+            cluster_runs = run_on_cluster(cluster, scenario, pending, args, record)
+            total_wall_s = time.perf_counter() - wall_start
+        if not args.ray_only and pending:
+            print(f"# the same {len(pending)} runs locally, {args.jobs} processes", flush=True)
+            local_start = time.perf_counter()
+            local_runs = run_locally(scenario, pending, args, lambda run: None, own_sessions=True)
+            local_wall_s = time.perf_counter() - local_start
+            differing = [
+                task
+                for task in pending
+                if local_runs[task].result_fields() != cluster_runs[task].result_fields()
+            ]
     runs = [finished[task] for task in tasks]
-    total_wall_s = time.perf_counter() - wall_start
 
     by_algorithm = {
         a: sorted((r for r in runs if r.algorithm == a), key=lambda r: r.seed) for a in algorithms
@@ -245,9 +342,20 @@ def main() -> None:
     )
     print(
         f"# {len(algorithms)} algorithms x {len(seeds)} optimiser seeds x {args.budget} "
-        f"evaluations, {args.jobs} processes, {total_wall_s:.0f} s wall"
+        f"evaluations, {where}, {total_wall_s:.0f} s wall"
         f" for the {len(pending)} runs not taken from the checkpoint"
     )
+    if local_wall_s is not None:
+        print(
+            f"# wall time of the {len(pending)} runs: Ray {total_wall_s:.1f} s, local "
+            f"({args.jobs} processes) {local_wall_s:.1f} s, ratio local/Ray "
+            f"{local_wall_s / total_wall_s:.2f}; "
+            + (
+                "every run gave the same result both ways"
+                if not differing
+                else f"{len(differing)} runs DIFFER: {differing}"
+            )
+        )
     print(f"# Table 2 with even centres: {float(reference.fitness_db[0]):.3f} dB")
     print()
     print("best fitness (16) over seeds, dB")
@@ -302,6 +410,14 @@ def main() -> None:
         "noise_seed": reference.seed,
         "seeds": seeds,
         "jobs": args.jobs,
+        "ray": None
+        if args.ray is None
+        else {
+            "address": args.ray,
+            "cluster": where,
+            "local_wall_time_s": local_wall_s,
+            "runs_differing_from_local": None if local_wall_s is None else len(differing),
+        },
         "wall_time_s": total_wall_s,
         "table2_fitness_db": float(reference.fitness_db[0]),
         "runs": [asdict(r) for r in runs],
