@@ -62,21 +62,25 @@ RssSample = tuple[float, int, float]
 """wall s, PID, RSS MiB."""
 
 
+LEADER = "@leader"
+"""In an episode's arguments: the robot that leads when the episode starts."""
+FOLLOWER = "@follower"
+"""In an episode's arguments: a robot that does not lead then (drawn with the seed)."""
+
+
 @dataclass(frozen=True)
 class Episode:
-    """One fault and what undoes it, as `swarm fault` arguments."""
+    """One fault and what undoes it, as `swarm fault` arguments (LEADER and FOLLOWER stand for
+    whoever leads and follows when it starts: after a failover another robot leads)."""
 
     name: str
     inject: tuple[str, ...]
     undo: tuple[str, ...] | None
-    leader_fault: bool = False
-    """The fault takes the acting leader away: a failover should follow."""
 
 
-def episode_pool(robots: tuple[str, ...], leader: str, rng: random.Random) -> list[Episode]:
+def episode_pool(robots: tuple[str, ...], rng: random.Random) -> list[Episode]:
     """Every kind of episode, its subjects and settings drawn with `rng`."""
     robot = rng.choice(robots)
-    follower = rng.choice([r for r in robots if r != leader])
     wheel = str(rng.randrange(4))
     register = [
         ("pwm-stuck", "--wheel", wheel, "--duty", f"{rng.uniform(-0.6, 0.6):.2f}"),
@@ -89,10 +93,9 @@ def episode_pool(robots: tuple[str, ...], leader: str, rng: random.Random) -> li
         ("tick-slow", "--extra-ms", f"{rng.uniform(2.0, 8.0):.1f}"),
     ]
     pool = [
-        Episode(f"kill+restart {follower}", ("kill", follower), ("restart", follower)),
-        Episode(
-            f"stop+cont {robot}", ("stop", robot), ("cont", robot), leader_fault=robot == leader
-        ),
+        Episode("kill+restart a follower", ("kill", FOLLOWER), ("restart", FOLLOWER)),
+        Episode("stop+cont the leader", ("stop", LEADER), ("cont", LEADER)),
+        Episode("stop+cont a follower", ("stop", FOLLOWER), ("cont", FOLLOWER)),
         Episode("stop+cont world", ("stop", "world"), ("cont", "world")),
         Episode(f"partition {robot}+heal", ("partition", robot), ("heal",)),
         Episode("net loss 0.3+heal", ("net", "--loss", "0.3"), ("heal",)),
@@ -109,19 +112,17 @@ def episode_pool(robots: tuple[str, ...], leader: str, rng: random.Random) -> li
     return pool
 
 
-def plan_episodes(
-    count: int, robots: tuple[str, ...], leader: str, rng: random.Random
-) -> list[Episode]:
+def plan_episodes(count: int, robots: tuple[str, ...], rng: random.Random) -> list[Episode]:
     """The leader, the world and the router first, then every kind of episode once in a random
     order (subjects and settings drawn anew each round), round after round."""
     fixed = [
-        Episode(f"kill+restart {leader} (leader)", ("kill", leader), ("restart", leader), True),
+        Episode("kill+restart the leader", ("kill", LEADER), ("restart", LEADER)),
         Episode("kill+restart world", ("kill", "world"), ("restart", "world")),
         Episode("kill+restart router", ("kill", "router"), ("restart", "router")),
     ]
     plan = fixed[:count]
     while len(plan) < count:
-        round_ = episode_pool(robots, leader, rng) + fixed
+        round_ = episode_pool(robots, rng) + fixed
         rng.shuffle(round_)
         plan += round_[: count - len(plan)]
     return plan
@@ -143,6 +144,11 @@ class Answer:
 class EpisodeRecord:
     episode: Episode
     started_wall_s: float
+    inject: tuple[str, ...] = ()
+    undo: tuple[str, ...] | None = None
+    """The episode's arguments with LEADER and FOLLOWER filled in when it started."""
+    leader_fault: bool = False
+    """It killed or stopped the robot that led: a failover should follow."""
     injected: Answer | None = None
     undone: Answer | None = None
     failover_s: float | None = None
@@ -283,6 +289,18 @@ def run_events(out: Path) -> list[dict[str, Any]]:
     return events
 
 
+def acting_leader(events: list[dict[str, Any]], designated: str) -> str:
+    """Who leads after the last `leader_change` event (the designated leader before any)."""
+    changes = [e for e in events if e.get("kind") == "leader_change" and e.get("subject")]
+    return str(changes[-1]["subject"]) if changes else designated
+
+
+def resolve(argv: tuple[str, ...] | None, leader: str, follower: str) -> tuple[str, ...] | None:
+    if argv is None:
+        return None
+    return tuple(leader if a == LEADER else follower if a == FOLLOWER else a for a in argv)
+
+
 def failover_after(events: list[dict[str, Any]], injected_sim_s: float | None) -> float | None:
     """Simulation seconds from a leader fault to the next leader_change event."""
     if injected_sim_s is None:
@@ -369,7 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     leader = robots[scenario.leader_index]
     rng = random.Random(args.seed)
     count = max(1, int((args.minutes * 60.0 - args.warmup_s) // args.every_s))
-    plan = plan_episodes(count, robots, leader, rng)
+    plan = plan_episodes(count, robots, rng)
+    pick = random.Random(args.seed + 1)  # the robot of a FOLLOWER episode, as it starts
     records = [
         EpisodeRecord(e, started_wall_s=args.warmup_s + i * args.every_s)
         for i, e in enumerate(plan)
@@ -390,16 +409,21 @@ def main(argv: list[str] | None = None) -> int:
             for record in records:
                 if stop.wait(max(0.0, record.started_wall_s - soak.wall_s())):
                     return
-                record.injected = soak.fault(record.episode.inject)
+                leads = acting_leader(run_events(out), leader)
+                follower = pick.choice([r for r in robots if r != leads])
+                inject = resolve(record.episode.inject, leads, follower)
+                assert inject is not None
+                record.inject, record.undo = inject, resolve(record.episode.undo, leads, follower)
+                record.leader_fault = inject[0] in ("kill", "stop") and inject[1] == leads
+                record.injected = soak.fault(inject)
                 print(f"[{soak.wall_s():7.1f} s] {record.episode.name}: "
-                      f"{' '.join(record.episode.inject)} -> {record.injected.outcome}",
-                      flush=True)  # fmt: skip
-                if record.episode.undo is None:
+                      f"{' '.join(inject)} -> {record.injected.outcome}", flush=True)  # fmt: skip
+                if record.undo is None:
                     continue
                 if stop.wait(max(0.0, record.started_wall_s + args.hold_s - soak.wall_s())):
                     return
-                record.undone = soak.fault(record.episode.undo)
-                print(f"[{soak.wall_s():7.1f} s]   undo: {' '.join(record.episode.undo)} -> "
+                record.undone = soak.fault(record.undo)
+                print(f"[{soak.wall_s():7.1f} s]   undo: {' '.join(record.undo)} -> "
                       f"{record.undone.outcome}", flush=True)  # fmt: skip
 
         thread = threading.Thread(target=injector, name="soak-injector", daemon=True)
@@ -424,7 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = up.summary() or {}
     for i, record in enumerate(records):
         until_s = records[i + 1].started_wall_s if i + 1 < len(records) else float("inf")
-        if record.episode.leader_fault and record.injected is not None:
+        if record.leader_fault and record.injected is not None:
             record.failover_s = failover_after(events, record.injected.sim_t_s)
         undone_at = record.undone.wall_s if record.undone is not None else None
         if undone_at is not None:
@@ -449,9 +473,10 @@ def main(argv: list[str] | None = None) -> int:
         undone = record.undone.outcome if record.undone else "-"
         if record.undone is not None and record.undone.via_launcher:
             undone += " (launcher)"
-        failover = _cell(record.failover_s, 2) if record.episode.leader_fault else "n/a"
+        failover = _cell(record.failover_s, 2) if record.leader_fault else "n/a"
+        what = record.episode.name + (f": {' '.join(record.inject)}" if record.inject else "")
         print(
-            f"| {i + 1} | {record.started_wall_s:.0f} | {record.episode.name} | {injected} | "
+            f"| {i + 1} | {record.started_wall_s:.0f} | {what} | {injected} | "
             f"{undone} | {failover} | {_cell(record.recovered_after_s)} |"
         )
     print()
