@@ -1,6 +1,7 @@
 """The dashboard's event timeline: each run event of the world (swarm_config/faults.py
 `RunEvent`) becomes a line of the event log and a marker on its kind's row, at its own
-simulation time; events already in `<out>/events.jsonl` are logged too, each event once."""
+simulation time; events already in `<out>/events.jsonl` are logged too, each event once; a
+campaign run by `swarm up` with its dashboard lands in dashboard.rrd (slow)."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from services.dashboard.scene import (
 from swarm_config.credentials import DASHBOARD, generate_credential_set
 from swarm_config.faults import RunEvent
 from swarm_config.scenario import Scenario, load_scenario
-from tests.dashboard.conftest import read_recording
+from tests.dashboard.conftest import free_port, read_recording, start
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -223,3 +224,39 @@ def test_events_land_in_the_recording_at_their_sim_times(
         (25.0, [EVENT_ROWS["fault_injected"]]),
     ]
     assert f"/{entities.event_marker('leader_change')}" in recorded
+
+
+CAMPAIGN = ROOT / "configs" / "campaigns" / "follower-restart.yaml"
+
+
+@pytest.mark.slow
+def test_a_campaigns_events_reach_the_recording_of_swarm_ups_dashboard(tmp_path: Path) -> None:
+    """`swarm up --lockstep` of a campaign with its dashboard: every event the world records
+    in events.jsonl is in dashboard.rrd, on the event log and the timeline, at its time."""
+    out = tmp_path / "run"
+    argv = ["-m", "services.cli.main", "up", "--lockstep", "--scenario", str(CAMPAIGN)]
+    argv += ["--duration", "30", "--out", str(out), "--port", str(free_port())]
+    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+    swarm = start("swarm", argv, tmp_path / "logs")
+    try:
+        assert swarm.process.wait(timeout=300) == 0, swarm.output()
+    finally:
+        swarm.shut_down()
+    recorded_events = [
+        RunEvent.model_validate_json(line)
+        for line in (out / EVENTS_FILE).read_text(encoding="utf-8").splitlines()
+    ]
+    assert [(e.t_s, e.kind) for e in recorded_events] == [
+        (15.0, "fault_injected"),
+        (15.0, "robot_down"),
+        (25.0, "fault_injected"),
+        (25.0, "robot_up"),
+    ]
+    recording = read_recording(out / "dashboard.rrd")
+    lines = [(t, text) for t, (text,) in recording[f"/{entities.EVENTS}"].values("TextLog:text")]
+    for event in recorded_events:
+        assert (event.t_s, f"t={event.t_s:.2f} s {describe_event(event)}") in lines, lines
+    for kind in ("fault_injected", "robot_down", "robot_up"):
+        marked = recording[f"/{entities.event_marker(kind)}"].values("Scalars:scalars")
+        expected = [e.t_s for e in recorded_events if e.kind == kind]
+        assert [t for t, _ in marked] == expected, (kind, marked)
