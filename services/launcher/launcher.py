@@ -500,8 +500,11 @@ class Launcher:
         return None
 
     def shutdown(self, grace_s: float = 5.0) -> None:
+        """SIGTERM every child and wait for it: the dashboard, then the world (so its final
+        summary and events are of the run, not of robots going down one by one), then the
+        robots, then the router they all talk through."""
         order = [
-            n for n in ("dashboard", *self.plan.robots, "world", "router") if n in self.children
+            n for n in ("dashboard", "world", *self.plan.robots, "router") if n in self.children
         ]
         for name in order:
             child = self.children[name]

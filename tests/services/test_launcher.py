@@ -164,6 +164,18 @@ def test_shutdown_continues_a_stopped_process_so_it_sees_its_sigterm(
     assert frozen.signals == [signal.SIGSTOP, signal.SIGTERM, signal.SIGCONT]
 
 
+def test_shutdown_ends_the_world_before_the_robots_and_the_router_last(tmp_path: Path) -> None:
+    factory = StandInFactory()
+    plan = LaunchPlan(scenario=PAPER, robots=("robot1", "robot2"), out_dir=tmp_path)
+    launcher = Launcher(plan, factory=factory)  # type: ignore[arg-type]
+    for name in launcher.children:
+        launcher.start(name)
+    pid_names = {_process(launcher, name).pid: name for name in launcher.children}
+    launcher.shutdown(grace_s=0.0)
+    ended = [pid_names[pid] for pid in factory.ended]
+    assert ended == ["dashboard", "world", "robot1", "robot2", "router"]
+
+
 @pytest.mark.parametrize("verb", ["stop", "cont"])
 def test_stop_and_cont_of_an_unknown_process_are_refused_and_nothing_changes(
     launcher: Launcher, verb: str

@@ -17,6 +17,8 @@ class StandInProcess:
     returncode: int | None = None
     signals: list[int] = field(default_factory=list)
     """Every signal sent with `send_signal`, in order."""
+    ended: list[int] | None = None
+    """Where the pid is appended when a signal ends it (the factory's `ended`, shared)."""
 
     def poll(self) -> int | None:
         return self.returncode
@@ -30,6 +32,8 @@ class StandInProcess:
         self.signals.append(sig)
         if sig not in (signal.SIGSTOP, signal.SIGCONT):
             self.returncode = -sig
+            if self.ended is not None:
+                self.ended.append(self.pid)
 
     def wait(self, timeout: float | None = None) -> int | None:
         return self.returncode
@@ -41,8 +45,10 @@ class StandInFactory:
 
     pids: Iterator[int] = field(default_factory=lambda: itertools.count(1000))
     started: list[StandInProcess] = field(default_factory=list)
+    ended: list[int] = field(default_factory=list)
+    """The pids of the children a signal ended, in the order they ended."""
 
     def __call__(self, _argv: list[str], _log: object, _env: dict[str, str]) -> StandInProcess:
-        child = StandInProcess(next(self.pids))
+        child = StandInProcess(next(self.pids), ended=self.ended)
         self.started.append(child)
         return child
