@@ -253,6 +253,13 @@ class RobotProcess:
             self.firmware.new_world_epoch(decision.sim_time_ns)
         elif decision.resumed:
             log.info("sense messages back: re-localising, stale peer state dropped")
+            # During the gap the fabric ran on the extrapolated time; a world that held its
+            # time (world/realtime_guard.py) is behind that: the fabric runs on from where it
+            # is instead of standing still (no sonar, no timers) until the world catches up.
+            self._fabric_offset_ns = max(
+                self._fabric_offset_ns, self._fabric_time_ns - decision.sim_time_ns
+            )
+            self._next_telemetry_ns = min(self._next_telemetry_ns, decision.sim_time_ns)
             self.firmware.resume(decision.sim_time_ns)
         self._control(decision.sim_time_ns, decision.tick, act_pub, tx_pub, telemetry_pub)
 
