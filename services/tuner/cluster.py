@@ -191,7 +191,6 @@ class RayCluster:
     def __init__(self, ray: ModuleType, address: ClusterAddress) -> None:
         self._ray = ray
         self.address = address
-        self.retried_tasks = 0
         self._lost_errors: tuple[type[BaseException], ...] = (
             ray.exceptions.NodeDiedError,
             ray.exceptions.WorkerCrashedError,
@@ -275,7 +274,6 @@ class RayCluster:
                         f"Ray cluster at {self.address}; last: {type(exc).__name__}"
                     ) from None
                 attempts[index] += 1
-                self.retried_tasks += 1
                 LOGGER.warning(
                     "task %d of %d lost with its worker (%s); submitted again (attempt %d of %d)",
                     index + 1,
