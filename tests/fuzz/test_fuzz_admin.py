@@ -192,6 +192,65 @@ def test_robot_status_requests(robot: Robot) -> None:
     )
 
 
+_REGISTER_FAULTS: tuple[dict[str, Any], ...] = (
+    {"fault": "encoder_stuck", "wheel": 1},
+    {"fault": "encoder_bit_stuck", "wheel": 2, "bit": 12, "value": 1},
+    {"fault": "sonar_no_echo"},
+    {"fault": "pwm_stuck", "wheel": 0, "duty": 0.37},
+    {"fault": "pwm_saturated", "wheel": 3, "sign": -1},
+    {"fault": "fix_cut"},
+    {"fault": "watchdog_expire"},
+    {"fault": "tick_slow", "extra_ms": 4.0},
+    {"fault": "clear_registers"},
+)
+"""One valid body per register fault (the robot is filled in)."""
+
+_OTHER_FAULTS: tuple[dict[str, Any], ...] = (
+    {"fault": "kill", "process": "robot3"},
+    {"fault": "stop", "process": "robot2"},
+    {"fault": "cont", "process": "robot2"},
+    {"fault": "restart", "process": "dashboard"},
+    {"fault": "net", "loss": 0.3},
+    {"fault": "net", "robot": "robot3", "latency_ms": 40.0, "jitter_ms": 5.0},
+    {
+        "fault": "net",
+        "link": ["robot1", "robot2"],
+        "burst": {"good_to_bad": 0.1, "bad_to_good": 0.5},
+    },
+    {"fault": "partition", "robots": ["robot3"]},
+    {"fault": "heal"},
+)
+"""One valid body per process and network fault (no world or router fault: the fuzzed world
+has no launcher to end it)."""
+
+
+def _fault_request(rng: random.Random, robots: tuple[str, ...]) -> Any:
+    if rng.random() < 0.6:
+        body = dict(rng.choice(_REGISTER_FAULTS))
+        body["robot"] = rng.choice((*robots, "robot9", "", "Robot1", *NASTY_JSON[:4]))
+    else:
+        body = dict(rng.choice(_OTHER_FAULTS))
+    return mutate_json(rng, body) if rng.random() < 0.5 else body
+
+
+def test_robot_fault_requests(robot: Robot) -> None:
+    faults = robot.process.fabric.faults
+
+    def state() -> object:
+        return robot.registers(), faults.labels, robot.process.fabric.hw_read_actuation()
+
+    counters = fuzz_verb(
+        "admin robot/fault",
+        robot.process.admin_handlers(),
+        "fault",
+        _bodies(8, lambda rng: _fault_request(rng, (robot.process.config.name,))),
+        state,
+    )
+    assert counters.refused[AdminRefusal.INVALID_REQUEST] > 0
+    assert counters.refused[AdminRefusal.UNKNOWN_ROBOT] > 0
+    faults.clear()
+
+
 # -- world ---------------------------------------------------------------------------------------
 
 
@@ -217,6 +276,27 @@ def test_world_net_requests() -> None:
         _bodies(4, request),
         lambda: world.engine.link,
     )
+
+
+def test_world_fault_requests() -> None:
+    """With no robot up, a register fault is refused as unreachable and a process fault as
+    unanswered; network faults are applied to the radio medium."""
+    world = make_world()
+    names = world.names
+
+    def state() -> object:
+        return json.dumps(world.engine.network.export_state(), sort_keys=True)
+
+    counters = fuzz_verb(
+        "admin world/fault",
+        world.admin_handlers(),
+        "fault",
+        _bodies(9, lambda rng: _fault_request(rng, names)),
+        state,
+    )
+    assert counters.refused[AdminRefusal.INVALID_REQUEST] > 0
+    assert counters.refused[AdminRefusal.UNKNOWN_ROBOT] > 0
+    assert counters.refused[AdminRefusal.UNREACHABLE] > 0
 
 
 def test_world_status_requests() -> None:
@@ -252,7 +332,7 @@ def _process_request(rng: random.Random) -> Any:
     return mutate_json(rng, body) if rng.random() < 0.3 else body
 
 
-@pytest.mark.parametrize("verb", ["status", "kill", "restart"])
+@pytest.mark.parametrize("verb", ["status", "kill", "restart", "stop", "cont"])
 def test_launcher_requests(launcher: tuple[Launcher, StandInFactory], verb: str) -> None:
     process_table, factory = launcher
 
