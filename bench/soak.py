@@ -1,4 +1,4 @@
-"""Soak: the real-time swarm under a random fault of the fault API every 30 s (issue 11, Soak).
+"""Soak: the real-time swarm under a random fault of the fault API every 30 s.
 
 `swarm up` (real time, no dashboard) runs the paper scenario from a copy whose `duration_s` is
 2000 s, so its reference never ends within the soak.  After `--warmup-s` (the formation

@@ -1,5 +1,5 @@
 """Register faults of one robot's FPGA: which are active, and how each IP model obeys them
-(issue 11, part 6; DESIGN.md §7, robustness semantics).
+(DESIGN.md §7, robustness semantics).
 
 The faults are the register kind of `swarm_config.faults` (`REGISTER_FAULT_ADAPTER`). They act
 below the firmware, on the hardware side of the IPs, so the firmware meets them only through

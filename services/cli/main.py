@@ -380,8 +380,8 @@ def _cmd_up(args: argparse.Namespace) -> int:
             )
         robot = plan.started_robots[-1] if plan.started_robots else "robot2"
         print(
-            f"try: swarm status | swarm kill {robot} | swarm restart {robot} | "
-            "swarm net set --loss 0.2",
+            f"try: swarm status | swarm fault kill {robot} | swarm fault restart {robot} | "
+            f"swarm fault partition {robot} | swarm fault heal",
             flush=True,
         )
 
@@ -748,8 +748,10 @@ def build_parser() -> argparse.ArgumentParser:
             "Start the swarm locally without Docker: a Zenoh router, the world process and one "
             "process per robot of the scenario, each logging to DIR/logs. Stops everything on "
             "Ctrl-C or after --duration and leaves DIR/summary.json. While it runs, "
-            "`swarm status`, `swarm kill ROBOT`, `swarm restart ROBOT`, `swarm net set` and "
-            "`swarm regs ROBOT` act on it."
+            "`swarm status`, `swarm fault ...` (process, network and register faults, recorded "
+            "in DIR/events.jsonl), `swarm kill ROBOT`, `swarm restart ROBOT`, `swarm net set` "
+            "and `swarm regs ROBOT` act on it. A scenario's faults: schedule is a campaign "
+            "(configs/campaigns/)."
         ),
     )
     up.add_argument(

@@ -1,4 +1,4 @@
-"""Fault campaigns that replay (issue 11, part 7): a scenario's `faults:` schedule, run as real
+"""Fault campaigns that replay: a scenario's `faults:` schedule, run as real
 processes under `swarm up --lockstep`, twice with the same seed, gives byte-identical
 summary.json and events.jsonl, and the events are the ones the campaign asks for.
 
