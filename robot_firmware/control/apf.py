@@ -12,9 +12,32 @@ and the ρ ≤ ρ₀ test is applied per pair.  Near contact 1/ρ³ diverges, so
 `min_gap_m` and the total force is clipped to `max_force`; inside that floor the force no
 longer equals the gradient.
 
-`pair_force` and `clip_vector` are the compiled scalar forms (numba) the control step's kernel
-calls; `repulsive_force` and `clip_norm` are their array forms.  `repulsive_potential` (eq. 23
-itself) is not part of the control step and stays in numpy, for tests and readers.
+Round other robots the paper's field is not enough (DESIGN.md §7: a dead robot stays where it
+stopped, as an obstacle, and the others keep going without collisions).  A body on a robot's
+path that does not move out of its way (a stopped robot, or a live one that stays put in the
+formation's frame while another rejoins its slot) is the field's local minimum: its repulsion
+points straight back along the path, balances the pull of the reference, and the robot stalls
+in front of it until the reference has moved past and pulls it through the body.  Two
+additions, for robot sources only (the paper's scenario never brings two robots within ρ₀, so
+its figures are unchanged):
+
+* **Circulation** (`circulation`): each robot that repels adds a tangential force, its radial
+  force turned by 90° and scaled by `circulation_ratio`, clipped on its own (the radial part
+  keeps its full clip near contact).  Round a live robot it turns anticlockwise, so two robots
+  that meet both turn the same way and pass.  Round a stopped one it turns to the side
+  (`circulation_side`) where the robot's goal and the push of its other sources lean when the
+  body begins to repel, and keeps that side while it repels: no chattering on the line through
+  the body, and the side with room wins when the body stands next to an obstacle.
+* **Keeping clear** (`keep_clear`): the offset's leak and a reference that runs into a body
+  can still pull the desired point into it faster than the clipped repulsion pushes back.  So
+  after the offset is updated, the desired point is moved out along the line from each robot
+  that repels through this one, to at least two body radii plus a clearance, and the part of
+  its velocity pointing back in is taken away.
+
+`pair_force`, `circulation`, `circulation_side`, `keep_clear` and `clip_vector` are the compiled
+scalar forms (numba) the control step's kernel calls; `repulsive_force` and `clip_norm` are the
+array forms of the first and the last.  `repulsive_potential` (eq. 23 itself) is not part of the
+control step and stays in numpy, for tests and readers.
 """
 
 from __future__ import annotations
@@ -51,6 +74,43 @@ def pair_force(
         return 0.0
     rho = max(gap_m, min_gap_m)
     return gain * (1.0 / rho - 1.0 / influence_m) / (rho * rho)
+
+
+@njit(cache=True)
+def circulation(direction_x: float, direction_y: float, magnitude: float) -> tuple[float, float]:
+    """The tangential force round another robot: `magnitude` along the unit direction
+    (direction_x, direction_y) from that robot to this one, turned anticlockwise by 90°
+    (a negative magnitude turns it clockwise)."""
+    return -magnitude * direction_y, magnitude * direction_x
+
+
+@njit(cache=True)
+def circulation_side(direction_x: float, direction_y: float, lean_x: float, lean_y: float) -> float:
+    """Which way to go round a stopped robot: +1 anticlockwise, -1 clockwise, the side along
+    which (lean_x, lean_y) points (anticlockwise when it has no tangential part)."""
+    return 1.0 if -direction_y * lean_x + direction_x * lean_y >= 0.0 else -1.0
+
+
+@njit(cache=True)
+def keep_clear(
+    from_source_x: float,
+    from_source_y: float,
+    rate_x: float,
+    rate_y: float,
+    direction_x: float,
+    direction_y: float,
+    reach_m: float,
+) -> tuple[float, float]:
+    """How a desired point is kept clear of another robot, along the unit direction
+    (direction_x, direction_y) from that robot through this one.
+
+    (from_source_x, from_source_y) is the desired point minus the other robot's position and
+    (rate_x, rate_y) the desired velocity.  Returns how far to move the point along the
+    direction so that it lies at least `reach_m` out, and the desired velocity's component
+    along the direction if it points back in (<= 0; 0 otherwise), to take away."""
+    along_m = from_source_x * direction_x + from_source_y * direction_y
+    inward_mps = min(rate_x * direction_x + rate_y * direction_y, 0.0)
+    return max(reach_m - along_m, 0.0), inward_mps
 
 
 @njit(cache=True)

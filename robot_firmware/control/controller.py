@@ -17,6 +17,12 @@ offset settles where the repulsion balances it, up to max speed x τ_hold, and t
 around the source while its reference moves on); once the field is clear the offset is released
 with a shorter τ_release.  The integrator is frozen while the field is active.
 
+Round another robot the repulsion also turns (circulation) and the desired point is kept clear
+of its body (apf.py): round a stopped robot (`ControlInputs.peer_stopped`: a dead one, braked
+where it lost power) the side is chosen once per encounter and kept in
+`ControllerState.circulation_side`.  Neither is in the paper, and neither acts in its scenario,
+where no two robots come within the influence distance.
+
 Sonar echoes that fall on a peer whose position is known from the radio are left to the
 robot-robot term, so a peer is not repelled twice.
 
@@ -39,7 +45,13 @@ from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 
-from robot_firmware.control.apf import clip_vector, pair_force
+from robot_firmware.control.apf import (
+    circulation,
+    circulation_side,
+    clip_vector,
+    keep_clear,
+    pair_force,
+)
 from robot_firmware.control.estimation import (
     EstimatorState,
     fuse_fix,
@@ -97,6 +109,10 @@ class ControllerParams(BaseModel):
     """ρ₀: the body-to-body gap below which a source repels."""
     apf_min_gap_m: PositiveFloat = 0.02
     apf_max_speed_mps: float = Field(default=0.8, ge=0.0)
+    apf_circulation_ratio: float = Field(default=1.0, ge=0.0)
+    """Tangential over radial repulsion round another robot (apf.py, `circulation`)."""
+    apf_clearance_m: float = Field(default=0.1, ge=0.0)
+    """The gap the desired point keeps from another robot's body (apf.py, `keep_clear`)."""
     avoidance_hold_time_constant_s: PositiveFloat = 1.5
     avoidance_release_time_constant_s: PositiveFloat = 0.4
     fix_gain: float = Field(default=0.3, gt=0.0, le=1.0)
@@ -123,6 +139,8 @@ class ControllerParams(BaseModel):
             influence_m=float(self.apf_influence_m),
             min_gap_m=float(self.apf_min_gap_m),
             max_repulsion_mps=float(self.apf_max_speed_mps),
+            circulation_ratio=float(self.apf_circulation_ratio),
+            clearance_m=float(self.apf_clearance_m),
             hold_tau_s=float(self.avoidance_hold_time_constant_s),
             release_tau_s=float(self.avoidance_release_time_constant_s),
             fix_gain=float(self.fix_gain),
@@ -165,6 +183,8 @@ class ControlConstants(NamedTuple):
     influence_m: float
     min_gap_m: float
     max_repulsion_mps: float
+    circulation_ratio: float
+    clearance_m: float
     hold_tau_s: float
     release_tau_s: float
     fix_gain: float
@@ -194,7 +214,9 @@ class ControllerState:
     """What a robot's control software remembers between ticks.
 
     echo_points_m / echo_valid (..., S, 2) / (..., S): the obstacle points of the last sonar
-    sweep in world coordinates, kept until the next sweep.
+    sweep in world coordinates, kept until the next sweep.  circulation_side (..., P): the side
+    (+1 anticlockwise, -1 clockwise, 0 none) the robot goes round each stopped peer that repels
+    it, kept while it repels (apf.py, `circulation`); None: no side chosen yet.
     """
 
     estimator: EstimatorState
@@ -202,6 +224,7 @@ class ControllerState:
     avoidance_offset_m: FloatArray
     echo_points_m: FloatArray
     echo_valid: BoolArray
+    circulation_side: FloatArray | None = None
 
     @staticmethod
     def initial(batch_shape: tuple[int, ...], sonar_count: int) -> ControllerState:
@@ -221,7 +244,9 @@ class ControlInputs:
     sonar_range_m is the latest gap reading of each transducer (inf: no echo), and
     sonar_fresh says whether it arrived since the previous tick.  peer_* arrays
     hold the last state each peer broadcast and when it was stamped; reference_* is the
-    trajectory at t_s (used by the leader only).
+    trajectory at t_s (used by the leader only).  peer_stopped marks the peers known to have
+    stopped for good (a dead robot's braked body, held at its last pose): the robot goes round
+    them (apf.py, `circulation`); None: no peer is.
     """
 
     t_s: float
@@ -237,6 +262,7 @@ class ControlInputs:
     peer_is_leader: BoolArray
     reference_pose: FloatArray
     reference_rate: FloatArray
+    peer_stopped: BoolArray | None = None
 
 
 @dataclass(frozen=True)
@@ -314,7 +340,7 @@ def control_robot(
     scratch_ok (R, P) and scratch_pose (R, P, 3) hold the peers seen this tick; origin is a
     zero pose, the leader's while none is heard.
     """
-    pose_in, rate_in, integral_in, previous_error, rate_prev, offset_in, echo_in = state_f
+    pose_in, rate_in, integral_in, previous_error, rate_prev, offset_in, echo_in, side_in = state_f
     previous_counts, localised_in, saturated_in, started_in, echo_valid_in = state_b
     (
         fix_pose,
@@ -327,10 +353,10 @@ def control_robot(
         slot_distance,
         slot_angle,
     ) = inputs_f
-    counts, fix_valid, peer_valid, peer_is_leader, is_leader = inputs_b
+    counts, fix_valid, peer_valid, peer_is_leader, peer_stopped, is_leader = inputs_b
     error_centres, rate_centres, error_count, rate_count, rule_outputs = rules
-    (pose, rate, integral, error, error_rate, offset, echo_points, wheel, duty, desired,
-     desired_rate, delta_k, kp, ki, kd, repulsion) = out_f  # fmt: skip
+    (pose, rate, integral, error, error_rate, offset, echo_points, side_out, wheel, duty,
+     desired, desired_rate, delta_k, kp, ki, kd, repulsion) = out_f  # fmt: skip
     previous_counts_out, localised, saturated, started, echo_valid, active_out = out_b
 
     # Level 2: odometry (eq. 11) and the positioning fix.
@@ -420,7 +446,46 @@ def control_robot(
         )  # fmt: skip
         echo_x += magnitude * (dx / reach)
         echo_y += magnitude * (dy / reach)
+
+    # Level 3: the tangential part round each robot that repels (apf.py, `circulation`): round
+    # a stopped one to the side chosen when it began to repel, where the goal (the way the
+    # reference moves plus its lead over the robot, closed in one hold time constant) and the
+    # other sources' push lean; round a live one anticlockwise.
+    goal_x = desired_rate[i, 0] + (desired[i, 0] - x) / k.hold_tau_s
+    goal_y = desired_rate[i, 1] + (desired[i, 1] - y) / k.hold_tau_s
+    turn_x = 0.0
+    turn_y = 0.0
+    for j in range(peers):
+        side_out[i, j] = 0.0
+        if not peer_ok[j]:
+            continue
+        dx = x - peer_pose[j, 0]
+        dy = y - peer_pose[j, 1]
+        centre_gap = math.hypot(dx, dy)
+        reach = max(centre_gap, 1e-9)
+        magnitude = pair_force(
+            centre_gap - 2.0 * k.body_radius_m, peer_ok[j], k.robot_gain, k.influence_m,
+            k.min_gap_m,
+        )  # fmt: skip
+        if magnitude == 0.0:
+            continue
+        ux = dx / reach
+        uy = dy / reach
+        side = 1.0
+        if peer_stopped[i, j]:
+            side = side_in[i, j]
+            if side == 0.0:
+                lean_x = goal_x + force_x + echo_x - magnitude * ux
+                lean_y = goal_y + force_y + echo_y - magnitude * uy
+                side = circulation_side(ux, uy, lean_x, lean_y)
+            side_out[i, j] = side
+        tangent_x, tangent_y = circulation(ux, uy, side * k.circulation_ratio * magnitude)
+        turn_x += tangent_x
+        turn_y += tangent_y
     rx, ry = clip_vector(force_x + echo_x, force_y + echo_y, k.max_repulsion_mps)
+    tx, ty = clip_vector(turn_x, turn_y, k.circulation_ratio * k.max_repulsion_mps)
+    rx += tx
+    ry += ty
     repulsion[i, 0] = rx
     repulsion[i, 1] = ry
     avoiding = rx != 0.0 or ry != 0.0
@@ -430,6 +495,28 @@ def control_robot(
         offset[i, a] = offset_in[i, a] + offset_rate * k.dt_s
         desired[i, a] += offset[i, a]
         desired_rate[i, a] += offset_rate
+    # Level 3: the desired point stays clear of every robot that repels (apf.py, `keep_clear`).
+    for j in range(peers):
+        if not peer_ok[j]:
+            continue
+        dx = x - peer_pose[j, 0]
+        dy = y - peer_pose[j, 1]
+        centre_gap = math.hypot(dx, dy)
+        if centre_gap - 2.0 * k.body_radius_m > k.influence_m:
+            continue
+        reach = max(centre_gap, 1e-9)
+        ux = dx / reach
+        uy = dy / reach
+        push_m, inward_mps = keep_clear(
+            desired[i, 0] - peer_pose[j, 0], desired[i, 1] - peer_pose[j, 1],
+            desired_rate[i, 0], desired_rate[i, 1], ux, uy, 2.0 * k.body_radius_m + k.clearance_m,
+        )  # fmt: skip
+        offset[i, 0] += push_m * ux
+        offset[i, 1] += push_m * uy
+        desired[i, 0] += push_m * ux
+        desired[i, 1] += push_m * uy
+        desired_rate[i, 0] -= inward_mps * ux
+        desired_rate[i, 1] -= inward_mps * uy
 
     # Level 4: fuzzy-scheduled gains (Table 2, eqs. 6-7) and the redundant PID law (eq. 14).
     axis_error(pose[i], desired[i], error[i])
@@ -467,18 +554,19 @@ def _make_control_rows(parallel: bool):  # type: ignore[no-untyped-def]
     def control_rows(k, t_s, sonar_fresh, state_f, state_b, inputs_f, inputs_b, rules):  # type: ignore[no-untyped-def]
         n = state_f[0].shape[0]
         beams = k.beam_angles_rad.shape[0]
+        peers = inputs_f[4].shape[1]
         out_f = (
             np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
-            np.empty((n, 3)), np.empty((n, 2)), np.empty((n, beams, 2)), np.empty((n, 4)),
-            np.empty((n, 4)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
-            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)),
+            np.empty((n, 3)), np.empty((n, 2)), np.empty((n, beams, 2)), np.empty((n, peers)),
+            np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 2)),
         )  # fmt: skip
         out_b = (
             np.empty((n, 4), dtype=np.int64), np.empty(n, dtype=np.bool_),
             np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_),
             np.empty((n, beams), dtype=np.bool_), np.empty(n, dtype=np.bool_),
         )  # fmt: skip
-        peers = inputs_f[4].shape[1]
         scratch_ok = np.empty((n, peers), dtype=np.bool_)
         scratch_pose = np.empty((n, peers, 3))
         origin = np.zeros(3)
@@ -513,11 +601,16 @@ def control_step(
     est, pid = state.estimator, state.pid
     f8, i8, b1 = np.float64, np.int64, np.bool_
     batch = est.pose.shape[:-1]
+    peer_shape = np.broadcast_shapes(batch + (1,), np.shape(inputs.peer_valid))
+    stopped = (
+        np.zeros(peer_shape, dtype=bool) if inputs.peer_stopped is None else inputs.peer_stopped
+    )
+    side = np.zeros(peer_shape) if state.circulation_side is None else state.circulation_side
     rows = rows_of(
         batch,
         (est.pose, 1, f8), (est.rate, 1, f8), (pid.integral, 1, f8),
         (pid.previous_error, 1, f8), (pid.error_rate, 1, f8), (state.avoidance_offset_m, 1, f8),
-        (state.echo_points_m, 2, f8),
+        (state.echo_points_m, 2, f8), (side, 1, f8),
         (est.previous_counts, 1, i8), (est.localised, 0, b1), (pid.saturated, 0, b1),
         (pid.started, 0, b1), (state.echo_valid, 1, b1),
         (inputs.fix_pose, 1, f8), (inputs.sonar_range_m, 1, f8), (inputs.peer_pose, 2, f8),
@@ -525,7 +618,7 @@ def control_step(
         (inputs.reference_rate, 1, f8), (role.slot_distance_m, 0, f8),
         (role.slot_angle_rad, 0, f8),
         (inputs.encoder_counts, 1, i8), (inputs.fix_valid, 0, b1), (inputs.peer_valid, 1, b1),
-        (inputs.peer_is_leader, 1, b1), (role.is_leader, 0, b1),
+        (inputs.peer_is_leader, 1, b1), (stopped, 1, b1), (role.is_leader, 0, b1),
         (rule_base.error_centres, 1, f8), (rule_base.rate_centres, 1, f8),
         (rule_base.error_set_count, 0, i8), (rule_base.rate_set_count, 0, i8),
         (rule_base.rule_outputs, 2, f8),
@@ -534,11 +627,11 @@ def control_step(
     kernel = _control_rows_parallel if robots >= PARALLEL_MIN_ROBOTS else _control_rows_serial
     out_f, out_b = kernel(
         params.constants, float(inputs.t_s), bool(inputs.sonar_fresh),
-        tuple(rows[0:7]), tuple(rows[7:12]), tuple(rows[12:21]), tuple(rows[21:26]),
-        tuple(rows[26:31]),
+        tuple(rows[0:8]), tuple(rows[8:13]), tuple(rows[13:22]), tuple(rows[22:28]),
+        tuple(rows[28:33]),
     )  # fmt: skip
-    (pose, rate, integral, error, error_rate, offset, echo_points, wheel, duty, desired,
-     desired_rate, delta_k, kp, ki, kd, repulsion) = (
+    (pose, rate, integral, error, error_rate, offset, echo_points, side_out, wheel, duty,
+     desired, desired_rate, delta_k, kp, ki, kd, repulsion) = (
         from_rows(a, batch) for a in out_f
     )  # fmt: skip
     previous_counts, localised, saturated, started, echo_valid, active = (
@@ -558,6 +651,7 @@ def control_step(
         avoidance_offset_m=offset,
         echo_points_m=echo_points,
         echo_valid=echo_valid,
+        circulation_side=side_out,
     )
     outputs = ControlOutputs(
         wheel_speed_radps=wheel,

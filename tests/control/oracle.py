@@ -9,7 +9,8 @@ the packages imports it.  Every function takes arrays with arbitrary leading bat
     PID law           eqs. 12 and 14 with anti-windup and wheel-speed saturation
     estimator         odometry through eq. 11 at the mid-step heading, fix fusion
     formation         eqs. 17-21 (atan2 form of eq. 20)
-    APF               eq. 25 per pair, floored gap, clipped total
+    APF               eq. 25 per pair, floored gap, clipped total; the tangential part round
+                      other robots and the desired point kept clear of them
     fuzzy scheduler   eqs. 6-7 with Table 2: the four firing rules, and the full product
     control_step      one tick of 5C levels 2-4 (robot_firmware/control/controller.py)
     step_bodies       first-order motors, exact θ(t), 3-point Gauss-Legendre position
@@ -292,10 +293,17 @@ def repulsive_force(
     gap_m: (..., K) body-to-body gaps.  valid: (..., K) which sources exist.
     Returns the force (..., 2) before clipping.
     """
+    magnitude = pair_magnitude(gap_m, valid, gain, influence_m, min_gap_m)
+    return np.asarray(np.sum(magnitude[..., None] * direction_from_source, axis=-2))
+
+
+def pair_magnitude(
+    gap_m: FloatArray, valid: BoolArray, gain: float, influence_m: float, min_gap_m: float
+) -> FloatArray:
+    """Eq. 25 for each pair (..., K): the magnitude along the source-to-robot direction."""
     rho = np.maximum(gap_m, min_gap_m)
     magnitude = gain * (1.0 / rho - 1.0 / influence_m) / (rho * rho)
-    magnitude = np.where(valid & (gap_m <= influence_m), magnitude, 0.0)
-    return np.asarray(np.sum(magnitude[..., None] * direction_from_source, axis=-2))
+    return np.where(valid & (gap_m <= influence_m), magnitude, 0.0)
 
 
 def clip_norm(vector: FloatArray, max_norm: float) -> FloatArray:
@@ -492,14 +500,10 @@ def control_step(
     centre_gap = np.hypot(to_self[..., 0], to_self[..., 1])
     peer_dir = to_self / np.maximum(centre_gap, 1e-9)[..., None]
     peer_gap = centre_gap - 2.0 * params.body_radius_m
-    force = repulsive_force(
-        peer_dir,
-        peer_gap,
-        peer_ok,
-        params.apf_robot_gain,
-        params.apf_influence_m,
-        params.apf_min_gap_m,
+    peer_magnitude = pair_magnitude(
+        peer_gap, peer_ok, params.apf_robot_gain, params.apf_influence_m, params.apf_min_gap_m
     )
+    force = np.sum(peer_magnitude[..., None] * peer_dir, axis=-2)
     if inputs.sonar_fresh:
         echo_points, echo_valid = sonar_echo_points(
             pose, inputs.sonar_range_m, peer_pose, peer_ok, params
@@ -516,7 +520,35 @@ def control_step(
         params.apf_influence_m,
         params.apf_min_gap_m,
     )
-    repulsion = clip_norm(force, params.apf_max_speed_mps)
+
+    # Level 3: the tangential part round every robot that repels: round a stopped one to the
+    # side chosen when it began to repel (the goal and the other sources' push), kept while
+    # it repels; round a live one anticlockwise.
+    stopped = (
+        np.zeros(peer_ok.shape, dtype=bool)
+        if inputs.peer_stopped is None
+        else np.broadcast_to(inputs.peer_stopped, peer_ok.shape)
+    )
+    prior_side = (
+        np.zeros(peer_ok.shape)
+        if state.circulation_side is None
+        else np.broadcast_to(state.circulation_side, peer_ok.shape)
+    )
+    goal = desired_rate[..., :2] + (desired_pose[..., :2] - pose[..., :2]) / (
+        params.avoidance_hold_time_constant_s
+    )
+    tangent = np.stack((-peer_dir[..., 1], peer_dir[..., 0]), axis=-1)
+    lean = goal[..., None, :] + force[..., None, :] - peer_magnitude[..., None] * peer_dir
+    leaning = np.where(np.sum(tangent * lean, axis=-1) >= 0.0, 1.0, -1.0)
+    stopped_side = np.where(prior_side != 0.0, prior_side, leaning)
+    repels = peer_magnitude != 0.0
+    circulation_side = np.where(repels & stopped, stopped_side, 0.0)
+    side = np.where(stopped, stopped_side, 1.0)
+    turn_magnitude = np.where(repels, side * params.apf_circulation_ratio * peer_magnitude, 0.0)
+    turn = np.sum(turn_magnitude[..., None] * tangent, axis=-2)
+    repulsion = clip_norm(force, params.apf_max_speed_mps) + clip_norm(
+        turn, params.apf_circulation_ratio * params.apf_max_speed_mps
+    )
     avoiding = np.any(repulsion != 0.0, axis=-1)
     leak_time_constant_s = np.where(
         avoiding, params.avoidance_hold_time_constant_s, params.avoidance_release_time_constant_s
@@ -527,6 +559,22 @@ def control_step(
     desired_rate = desired_rate.copy()
     desired_pose[..., :2] += offset
     desired_rate[..., :2] += offset_rate
+
+    # Level 3: the desired point kept clear of every robot that repels, one after the other:
+    # at least two body radii plus the clearance from it along the line through the robot, and
+    # without a velocity back towards it.
+    near = peer_ok & (peer_gap <= params.apf_influence_m)
+    reach_m = 2.0 * params.body_radius_m + params.apf_clearance_m
+    for j in range(peer_ok.shape[-1]):
+        direction = peer_dir[..., j, :]
+        along_m = np.sum((desired_pose[..., :2] - peer_pose[..., j, :2]) * direction, axis=-1)
+        push_m = np.where(near[..., j], np.maximum(reach_m - along_m, 0.0), 0.0)
+        inward_mps = np.where(
+            near[..., j], np.minimum(np.sum(desired_rate[..., :2] * direction, axis=-1), 0.0), 0.0
+        )
+        offset = offset + push_m[..., None] * direction
+        desired_pose[..., :2] += push_m[..., None] * direction
+        desired_rate[..., :2] -= inward_mps[..., None] * direction
 
     # Level 4: fuzzy-scheduled gains and the redundant PID law.
     error = tracking_error(pose, desired_pose)
@@ -565,6 +613,7 @@ def control_step(
         avoidance_offset_m=offset,
         echo_points_m=echo_points,
         echo_valid=echo_valid,
+        circulation_side=circulation_side,
     )
     outputs = ControlOutputs(
         wheel_speed_radps=wheel,

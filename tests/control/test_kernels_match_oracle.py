@@ -2,7 +2,8 @@
 
 Seeded random batches of robots, with the edge cases mixed in: headings past ±π, errors that
 saturate the wheels and the integral, robots with no peers and no echoes, stale and invalid
-peers, sonar sweeps fresh and held, unlocalised robots, fuzzy inputs exactly on the set centres
+peers, stopped peers with a side to go round them already chosen or not, sonar sweeps fresh and
+held, unlocalised robots, fuzzy inputs exactly on the set centres
 and beyond the outer ones, and bodies in contact.  Agreement is required to 1e-12, relative
 for magnitudes above 1 (gains of 60 multiply last-bit differences between numpy's and the
 compiled arithmetic into the 12th digit).
@@ -68,6 +69,7 @@ def _random_case(
         avoidance_offset_m=rng.normal(0.0, 0.05, b + (2,)),
         echo_points_m=pose[..., None, :2] + rng.normal(0.0, 0.5, b + (s, 2)),
         echo_valid=rng.random(b + (s,)) < 0.5,
+        circulation_side=rng.choice([-1.0, 0.0, 1.0], b + (PEERS,)),
     )
     near = pose[..., None, :] + rng.normal(0.0, 0.5, b + (PEERS, 3))  # peers close by
     sonar = rng.uniform(0.0, 1.0, b + (s,))
@@ -91,6 +93,7 @@ def _random_case(
         peer_is_leader=np.broadcast_to(np.arange(PEERS) == 0, b + (PEERS,)),
         reference_pose=np.array([1.0, -0.5, 3.1]),
         reference_rate=np.array([0.2, 0.1, 0.3]),
+        peer_stopped=rng.random(b + (PEERS,)) < 0.5,
     )
     role = RobotRole(
         is_leader=leader,
