@@ -1,6 +1,27 @@
-import numpy as np
+"""Eqs. 23 and 25 (the force is the potential's negative gradient, clipped near contact), and
+the avoidance round other robots: circulation and keeping the desired point clear (apf.py)."""
 
-from robot_firmware.control.apf import clip_norm, repulsive_force, repulsive_potential
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from robot_firmware.control.apf import (
+    circulation,
+    circulation_side,
+    clip_norm,
+    keep_clear,
+    repulsive_force,
+    repulsive_potential,
+)
+from robot_firmware.control.controller import (
+    ControlInputs,
+    ControllerParams,
+    ControllerState,
+    RobotRole,
+    control_step,
+)
+from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 
 GAIN = 0.005
 INFLUENCE_M = 0.4
@@ -90,3 +111,94 @@ def test_eqs23_and_25_at_gaps_worked_by_hand() -> None:
     # Closer than the floor (0.02 m < 0.05 m), ρ is taken as 0.05: (20 − 2.5)/0.0025 = 7000.
     floored = repulsive_force(directions[:1], np.array([0.02]), both[:1], 1.0, 0.4, 0.05)
     np.testing.assert_allclose(floored, [7000.0, 0.0], rtol=1e-12)
+
+
+# -- round other robots: circulation and keeping clear (apf.py) ------------------------------
+
+
+def test_circulation_turns_the_radial_direction_by_a_quarter_turn() -> None:
+    assert circulation(1.0, 0.0, 0.5) == (-0.0, 0.5)  # east of the source: pushed north
+    assert circulation(0.0, 1.0, -0.5) == (0.5, -0.0)  # clockwise: north of it, pushed east
+
+
+def test_circulation_side_follows_the_lean_and_ties_go_anticlockwise() -> None:
+    assert circulation_side(1.0, 0.0, 0.2, 0.3) == 1.0
+    assert circulation_side(1.0, 0.0, 0.2, -0.3) == -1.0
+    assert circulation_side(1.0, 0.0, -1.0, 0.0) == 1.0  # straight back at the source
+
+
+def test_keep_clear_pushes_a_desired_point_out_to_the_reach_and_drops_the_inward_velocity() -> None:
+    push_m, inward_mps = keep_clear(0.5, 0.1, -0.3, 0.2, 1.0, 0.0, 0.7)
+    assert push_m == pytest.approx(0.2) and inward_mps == pytest.approx(-0.3)
+    assert keep_clear(0.9, 0.0, 0.3, 0.0, 1.0, 0.0, 0.7) == (0.0, 0.0)
+
+
+def _one_robot_step(
+    peer_xy: tuple[float, float],
+    stopped: bool,
+    reference_xy: tuple[float, float],
+    side: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """One leader at the origin, localised, one peer; returns the repulsion, desired pose and
+    the side kept for the peer."""
+    params = ControllerParams()
+    state = ControllerState.initial((), len(params.sonar_beam_angles_rad))
+    state = replace(
+        state,
+        estimator=replace(state.estimator, localised=np.array(True)),
+        circulation_side=np.array([side]),
+    )
+    inputs = ControlInputs(
+        t_s=1.0,
+        encoder_counts=np.zeros(4, dtype=np.int64),
+        fix_pose=np.zeros(3),
+        fix_valid=np.array(False),
+        sonar_range_m=np.full(12, np.inf),
+        sonar_fresh=False,
+        peer_pose=np.array([[peer_xy[0], peer_xy[1], 0.0]]),
+        peer_rate=np.zeros((1, 3)),
+        peer_stamp_s=np.array([1.0]),
+        peer_valid=np.array([True]),
+        peer_is_leader=np.array([False]),
+        reference_pose=np.array([reference_xy[0], reference_xy[1], 0.0]),
+        reference_rate=np.zeros(3),
+        peer_stopped=np.array([stopped]),
+    )
+    role = RobotRole(np.array(True), np.array(0.0), np.array(0.0))
+    new_state, out = control_step(
+        state, inputs, role, FuzzyParameters.table2_defaults().rule_base(), params
+    )
+    assert new_state.circulation_side is not None
+    return out.repulsion_mps, out.desired_pose, float(new_state.circulation_side[0])
+
+
+def test_a_stopped_robot_dead_ahead_is_gone_round_not_stalled_in_front_of() -> None:
+    # The reference lies beyond a stopped robot 0.7 m east, a little to the north of the line.
+    # Seen from the stopped robot, this one is to its west: going round it by the north is
+    # clockwise (side -1).
+    repulsion, _, side = _one_robot_step((0.7, 0.0), True, (1.5, 0.05))
+    assert repulsion[0] < 0.0 and repulsion[1] > 0.0  # pushed back, and round to the north
+    assert side == -1.0
+    repulsion, _, side = _one_robot_step((0.7, 0.0), True, (1.5, -0.05))
+    assert repulsion[1] < 0.0 and side == 1.0
+    # Chosen once per encounter: a goal that leans the other way later does not flip it.
+    repulsion, _, side = _one_robot_step((0.7, 0.0), True, (1.5, -0.05), side=-1.0)
+    assert repulsion[1] > 0.0 and side == -1.0
+    # Out of reach, the side is forgotten.
+    assert _one_robot_step((1.5, 0.0), True, (3.0, 0.05), side=1.0)[2] == 0.0
+
+
+def test_a_live_robot_is_gone_round_anticlockwise_and_no_side_is_kept() -> None:
+    repulsion, _, side = _one_robot_step((0.7, 0.0), False, (1.5, -0.05))
+    assert repulsion[1] < 0.0 and side == 0.0  # anticlockwise round a robot to the east: south
+    repulsion, _, _ = _one_robot_step((0.0, 0.7), False, (0.0, 1.5))
+    assert repulsion[0] > 0.0  # round a robot to the north: pushed east
+
+
+def test_the_desired_point_is_kept_clear_of_a_robot_it_runs_into() -> None:
+    params = ControllerParams()
+    reach_m = 2.0 * params.body_radius_m + params.apf_clearance_m
+    _, desired, _ = _one_robot_step((0.7, 0.0), True, (0.7, 0.0))  # the reference is in it
+    assert 0.7 - desired[0] >= reach_m - 1e-9
+    _, clear, _ = _one_robot_step((0.7, 0.0), True, (-0.2, 0.0))  # already clear: untouched
+    assert clear[0] == pytest.approx(-0.2, abs=0.02)
