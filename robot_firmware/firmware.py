@@ -27,10 +27,17 @@ Time is an argument (`now_ns`); the class opens no
 socket and reads no clock, so a test can run it against a fabric model in one process.
 
 Who leads is not fixed by the mission: `Leadership` (robot_firmware/leadership.py) hears the
-term and role of every accepted frame (and the peers' liveliness, `set_peer_alive`), and each
-tick gives the control step its role (leader or follower), its slot relative to the acting
-leader (`slot_of`) and which peer that leader is.  Frames carry the robot's term and whether
-it leads.
+term and role of every accepted frame (and the peers' liveliness, `set_peer_alive`; not counted
+in lockstep, `lockstep`), and each tick gives the control step its role (leader or follower),
+its slot relative to the acting leader (`slot_of`; while rejoining, `rejoin_slot`) and which
+peer that leader is.  Frames carry the robot's term and whether it leads.
+
+A peer that is not live (its token gone, or silent past the leader time-out) has stopped: a
+dead robot's body is braked where it lost power and stays an obstacle (DESIGN.md §7).  It is
+held where its last broadcast state coasts to in `stopped_coast_s`, never goes stale, and is
+marked stopped for the avoidance (`ControlInputs.peer_stopped`), until it is heard again.  A
+peer other than the leader that has only been silent for longer than `stopped_coast_s` is not
+extrapolated beyond that either.
 """
 
 from __future__ import annotations
@@ -55,7 +62,13 @@ from robot_firmware.control.controller import (
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from robot_firmware.control.trajectories import Trajectory
 from robot_firmware.drivers import Drivers
-from robot_firmware.leadership import Leadership, LeadershipParams, handover_offset, slot_of
+from robot_firmware.leadership import (
+    Leadership,
+    LeadershipParams,
+    handover_offset,
+    rejoin_slot,
+    slot_of,
+)
 from robot_firmware.net.frames import (
     NO_RUN_ID,
     FrameDecoder,
@@ -184,11 +197,22 @@ class Firmware:
         self.peer_stamp_s = np.full(n, -np.inf)
         self.peer_is_leader = np.zeros(n, dtype=bool)
         self.peer_down = np.zeros(n, dtype=bool)
-        """Peers whose token went: stopped bodies at their last pose until heard again."""
+        """Peers that are not live: stopped bodies where they coasted to, until heard again."""
         self.leadership: Leadership | None = None
+        """Created at the first frame or tick, when the robot first knows the time."""
+        self.lockstep = False
+        """Whether the world runs in lockstep (the runtime sets it from the sense messages):
+        then the peers' liveliness tokens are kept but do not count (`Leadership.use_tokens`),
+        so failover depends only on frames and their simulation times."""
         self._handover: tuple[float, tuple[float, float]] | None = None
         """(time, offset from the trajectory) of taking over the lead while driving."""
-        """Created at the first frame or tick, when the robot first knows the time."""
+        self._followed: int | None = None
+        """The acting leader of the previous tick (None: none, or no tick yet)."""
+        self._rejoin_pending = False
+        """Whether the next tick with a known leader starts a rejoin (`_rejoin_slot`)."""
+        self._rejoin: tuple[float, tuple[float, float]] | None = None
+        """(time, (distance_m, angle_rad) relative to the leader) where the rejoin under way
+        started."""
         self.sonar_gap_m = np.full(mission.sonar_count, np.inf)
         self.fix_pose = np.zeros(3)
         self._sequence: int | None = None
@@ -270,21 +294,26 @@ class Firmware:
         if peer in self.mission.names:
             index = self.mission.names.index(peer)
             self.leadership_at(now_ns).set_alive(index, alive, now_ns / NS_PER_S)
-            if not alive and index != self.mission.index and np.isfinite(self.peer_stamp_s[index]):
-                # Its body has stopped where it last was (DESIGN.md §7: a power cut) and stays
-                # an obstacle: held at its last broadcast pose, not extrapolated along its last
-                # velocity, until it is heard again.
-                self.peer_down[index] = True
-                self.peer_rate[index] = 0.0
 
     def _take_role(self, now_ns: int) -> None:
         """This tick's role and slot, and which peer leads (levels 3-4 read them)."""
         leadership = self.leadership_at(now_ns)
         t_s = now_ns / NS_PER_S
+        first_tick = self.ticks == 0
+        leadership.use_tokens = not self.lockstep
         leadership.update(t_s)
         acting = leadership.acting_leader(t_s)
         m = self.mission
+        if acting != self._followed and not (first_tick and leadership.boot_s <= 0.0):
+            # A new leader to follow, or one again after none: rejoin from where it is.  Not at
+            # the run's start, where every robot drives straight to its slot (the paper's run).
+            self._rejoin_pending = True
+        self._followed = acting
         distance_m, angle_rad = slot_of(m.index, acting, m.leader_index, m.slot_table)
+        if acting is None or acting == m.index:
+            self._rejoin = None
+        else:
+            distance_m, angle_rad = self._rejoin_slot(t_s, acting, distance_m, angle_rad)
         self.role = RobotRole(
             is_leader=np.array(leadership.is_leader),
             slot_distance_m=np.array(distance_m),
@@ -293,7 +322,63 @@ class Firmware:
         self.peer_is_leader[:] = False
         if acting is not None and acting != m.index:
             self.peer_is_leader[acting] = True
-        self.peer_stamp_s[self.peer_down] = t_s  # a stopped body does not go stale
+        # A peer that is not live has stopped (DESIGN.md §7: a power cut; the world brakes its
+        # body) and stays an obstacle, never stale, until it is heard again: held where its
+        # last broadcast state coasts to in `stopped_coast_s`.
+        coast_s = m.leadership.stopped_coast_s
+        for peer in range(len(m.names)):
+            known = peer != m.index and bool(np.isfinite(self.peer_stamp_s[peer]))
+            down = known and not leadership.is_live(peer, t_s)
+            if down and not self.peer_down[peer]:
+                self.peer_pose[peer] += self.peer_rate[peer] * coast_s
+                self.peer_rate[peer] = 0.0
+            self.peer_down[peer] = down
+        self.peer_stamp_s[self.peer_down] = t_s
+
+    def _coasted_peers(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The peer table as the control step takes it: a peer other than the leader silent
+        for longer than `stopped_coast_s` is taken where its last state coasts to in that time,
+        not extrapolated further (a frozen or dead robot's body has stopped by then; the
+        leader's last state still places the followers' slots until it is lost)."""
+        coast_s = self.mission.leadership.stopped_coast_s
+        pose, rate, stamp_s = self.peer_pose.copy(), self.peer_rate.copy(), self.peer_stamp_s.copy()
+        age_s = t_s - stamp_s
+        silent = (age_s > coast_s) & (age_s <= self.mission.params.peer_timeout_s)
+        silent &= ~self.peer_is_leader
+        pose[silent] += rate[silent] * coast_s
+        rate[silent] = 0.0
+        stamp_s[silent] = t_s
+        return pose, rate, stamp_s
+
+    def _rejoin_slot(
+        self, t_s: float, leader: int, distance_m: float, angle_rad: float
+    ) -> tuple[float, float]:
+        """The slot (distance_m, angle_rad) to steer to while rejoining the formation.
+
+        A follower that starts following a leader after the run's start (booted late, resumed
+        after a gap, or re-referenced to a new leader) is seldom near its slot, and the control
+        law's pull on a far reference overpowers the avoidance.  So its slot starts where the
+        robot is, relative to the leader (eq. 17 inverted), and swings round to the real one at
+        `rejoin_speed_mps` (`rejoin_slot`)."""
+        if self._rejoin_pending:
+            est = self.state.estimator
+            age_s = t_s - self.peer_stamp_s[leader]
+            if not bool(est.localised) or not 0.0 <= age_s <= self.mission.params.peer_timeout_s:
+                return distance_m, angle_rad  # inactive until both poses are known
+            leader_pose = self.peer_pose[leader] + self.peer_rate[leader] * age_s
+            dx = float(est.pose[0] - leader_pose[0])
+            dy = float(est.pose[1] - leader_pose[1])
+            here = (math.hypot(dx, dy), math.atan2(dy, dx) - float(leader_pose[2]))
+            self._rejoin = (t_s, here)
+            self._rejoin_pending = False
+        if self._rejoin is None:
+            return distance_m, angle_rad
+        started_s, start = self._rejoin
+        speed_mps = self.mission.leadership.rejoin_speed_mps
+        slot = rejoin_slot(start, (distance_m, angle_rad), t_s - started_s, speed_mps)
+        if slot == (distance_m, angle_rad):
+            self._rejoin = None
+        return slot
 
     def _handed_over(
         self, was_leader: bool, t_s: float, pose: FloatArray, rate: FloatArray
@@ -339,6 +424,7 @@ class Firmware:
         self._next_broadcast_ns = 0
         self._next_sonar_ns = 0
         self._fresh_state_pending = True
+        self._rejoin_pending = True
         self.leadership_at(now_ns).resume(now_ns / NS_PER_S)
 
     def new_world_epoch(self, now_ns: int) -> None:
@@ -386,6 +472,7 @@ class Firmware:
             np.array(reference_pose, dtype=float),
             np.array(reference_rate, dtype=float),
         )
+        peer_pose, peer_rate, peer_stamp_s = self._coasted_peers(t_s)
         inputs = ControlInputs(
             t_s=t_s,
             encoder_counts=counts,
@@ -393,13 +480,14 @@ class Firmware:
             fix_valid=np.array(fix is not None),
             sonar_range_m=self.sonar_gap_m,
             sonar_fresh=sonar_fresh,
-            peer_pose=self.peer_pose,
-            peer_rate=self.peer_rate,
-            peer_stamp_s=self.peer_stamp_s,
+            peer_pose=peer_pose,
+            peer_rate=peer_rate,
+            peer_stamp_s=peer_stamp_s,
             peer_valid=np.isfinite(self.peer_stamp_s),
             peer_is_leader=self.peer_is_leader,
             reference_pose=reference_pose,
             reference_rate=reference_rate,
+            peer_stopped=self.peer_down.copy(),
         )
         self.last_state, self.last_inputs = self.state, inputs
         self.state, outputs = control_step(

@@ -18,6 +18,13 @@ s < s' (the lower index wins a tie).  A robot always follows the best claim it h
 is not known to be gone, or while its token is there and it has not been heard at all yet (up
 and still booting).  The robot itself is always live.
 
+**Lockstep: frames only.**  A token comes and goes at a wall-clock instant, which falls on a
+different tick of a lockstep run each time it is replayed.  So in lockstep (`use_tokens` off,
+set by the firmware from the world's clock mode) tokens are recorded but do not count: a peer
+is live while heard within `leader_timeout_s` of simulation time, and a leader is lost once
+unheard for that long.  Then who leads, and when it changes, follows from the frames the world
+delivers and their simulation times alone, and a campaign that kills the leader replays.
+
 **Leader lost.**  The leader a robot follows is lost when its token is gone, or when no claim of
 it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: the
 term's adoption or the leader's last claim; a leader not heard since this robot booted gets
@@ -71,6 +78,14 @@ follows, so two leaders never both act once they hear each other.
 offset that shrinks at `handover_speed_mps` (`handover_offset`), so it does not rush at the
 trajectory point, where the dead leader's body stopped.
 
+**Rejoin.**  A follower that starts following a leader after the run's start (booted into a
+running swarm, resumed after a freeze, or re-referenced to a new leader) is seldom near its slot,
+and the control law's pull on a far reference overpowers the avoidance.  So its slot starts where
+it is, relative to the leader, and swings round to the real one at `rejoin_speed_mps`
+(`rejoin_slot`): distance and angle move together, the angle the shorter way round, so the path
+goes round the leader instead of across it.  At the run's start (simulation time 0) every robot
+drives straight to its slot, as in the paper.
+
 **Slots.**  The scenario's slots are relative to the leader (eq. 17).  With robot L leading, a
 follower that has a scenario slot keeps it, relative to L; the designated leader, which has no
 slot of its own, takes L's slot (the slot L vacated).  So with robot2 leading, robot3 keeps its
@@ -85,7 +100,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from pydantic import BaseModel, ConfigDict, PositiveFloat
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
 
 class LeadershipParams(BaseModel):
@@ -97,6 +112,14 @@ class LeadershipParams(BaseModel):
     """A leader unheard for this long is lost: 10 broadcast periods at 20 Hz."""
     handover_speed_mps: PositiveFloat = 0.15
     """How fast a new leader's reference closes in on the trajectory (`handover_offset`)."""
+    rejoin_speed_mps: PositiveFloat = 0.45
+    """How fast a rejoining follower's slot moves to its real one (`rejoin_slot`), relative to
+    the leader: with the leader at 0.525 m/s the robot stays within its 0.9 m/s."""
+    stopped_coast_s: float = Field(default=0.2, ge=0.0)
+    """How long a silent peer is taken to have moved on at its last broadcast velocity before
+    it stopped (the firmware holds it there): its last frame's age (up to a broadcast period,
+    50 ms), the world's act time-out before it brakes the body (100 ms) and the motors' time
+    constant (50 ms)."""
     listen_s: PositiveFloat = 0.2
     """How long the designated leader listens after booting before it claims term 0."""
     boot_patience_s: PositiveFloat = 3.0
@@ -157,6 +180,10 @@ class Leadership:
     """Boot (or the last `resume`): the designated leader listens `listen_s` from here."""
     peers: list[PeerRecord] = field(init=False)
     changes: list[LeaderChange] = field(init=False, default_factory=list)
+    use_tokens: bool = field(init=False, default=True)
+    """Whether the peers' liveliness tokens count (`set_alive`).  Off in lockstep: a token
+    comes and goes at a wall-clock instant, so only frames and their simulation times decide
+    who is live, and a run replays."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.index < self.count or not 0 <= self.designated_leader < self.count:
@@ -250,9 +277,9 @@ class Leadership:
         if robot == self.index:
             return True
         peer = self.peers[robot]
-        if peer.token_gone:
+        if self.use_tokens and peer.token_gone:
             return False
-        if peer.token_seen and peer.last_heard_s == -math.inf:
+        if self.use_tokens and peer.token_seen and peer.last_heard_s == -math.inf:
             return True  # up and still booting: it will speak
         return t_s - peer.last_heard_s <= self.params.leader_timeout_s
 
@@ -278,7 +305,7 @@ class Leadership:
         )
 
     def _leader_lost(self, t_s: float) -> bool:
-        if self.leader is not None:
+        if self.leader is not None and self.use_tokens:
             peer = self.peers[self.leader]
             if peer.token_gone:
                 return True
@@ -321,6 +348,25 @@ def handover_offset(
         return (0.0, 0.0), (0.0, 0.0)
     ux, uy = offset0_m[0] / length_m, offset0_m[1] / length_m
     return (ux * left_m, uy * left_m), (-ux * speed_mps, -uy * speed_mps)
+
+
+def rejoin_slot(
+    start: tuple[float, float], slot: tuple[float, float], elapsed_s: float, speed_mps: float
+) -> tuple[float, float]:
+    """A rejoining follower's slot (distance_m, angle_rad) relative to the leader (eq. 17),
+    `elapsed_s` after it started at `start` (where the robot was), on its way to `slot`.
+
+    Distance and angle move together in proportion, the angle the shorter way round, over
+    the path's length (radial change and arc at the mean distance) at `speed_mps`: the slot
+    swings round the leader instead of cutting across it, and never comes closer to the
+    leader than the nearer of the two distances."""
+    (d0, a0), (d1, a1) = start, slot
+    turn = math.remainder(a1 - a0, math.tau)
+    length_m = math.hypot(d1 - d0, 0.5 * (d0 + d1) * turn)
+    done = 1.0 if length_m == 0.0 else min(1.0, speed_mps * max(elapsed_s, 0.0) / length_m)
+    if done >= 1.0:
+        return slot
+    return d0 + done * (d1 - d0), a0 + done * turn
 
 
 def slot_of(

@@ -18,7 +18,8 @@ gap re-localises and drops stale peer state (`Firmware.resume`).
 A liveliness token `alive/robot/<name>` tells the world and the launcher that the robot is up.
 The robot also watches its peers' tokens (`alive/robot/*`): a token that goes tells its leader
 election (robot_firmware/leadership.py) that the peer is gone, without waiting for its frames
-to go stale; changes are queued by the callback and handed over at the next tick.
+to go stale (in real time; in lockstep only frames count, so a failover replays); changes are
+queued by the callback and handed over at the next tick.
 Telemetry (estimate, desired pose, gains, fuzzy output, counters, loop timing) is published at
 its own rate.
 The admin verb `fault` injects one register fault into the robot's FPGA model
@@ -310,6 +311,8 @@ class RobotProcess:
         telemetry_pub: zenoh.Publisher,
     ) -> None:
         self._advance_fabric_to(now_ns)
+        # In lockstep the tokens' wall-clock instants must not decide a failover (replays).
+        self.firmware.lockstep = self.scheduler.lockstep
         while self._peer_tokens:
             peer, alive = self._peer_tokens.popleft()
             self.firmware.set_peer_alive(peer, alive, now_ns)

@@ -1,20 +1,44 @@
 """Leader election: every transition of the table in robot_firmware/leadership.py, failover
-timing, split brain after a partition, the returning leader, and the slots."""
+timing, split brain after a partition, the returning leader, the slots and the rejoin; in
+lockstep only frames count, so a failover replays.  Then the firmware's side (stopped peers)
+and whole swarms of real firmware against the world engine in one process: a killed leader, a
+frozen follower."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
+from pathlib import Path
 
+import numpy as np
 import pytest
 
+from robot_firmware.control.formation import follower_slot_in_world
+from robot_firmware.drivers import Drivers
+from robot_firmware.firmware import Firmware, RobotMission
+from robot_firmware.fpga.fabric import Fabric, FabricConfig
 from robot_firmware.leadership import (
     Leadership,
     LeadershipParams,
     Phase,
     claim_beats,
     handover_offset,
+    rejoin_slot,
     slot_of,
 )
+from robot_firmware.net.frames import (
+    RadioFrame,
+    Role,
+    encode,
+    initial_sequence,
+    key_from_secret,
+    next_sequence,
+    parse_frame,
+)
+from robot_firmware.net.wire import FixSample, SenseMessage
+from robot_firmware.pins import apply_sense
+from services.sim.firmware_swarm import FirmwareRobot, FirmwareSwarm
+from swarm_config.scenario import load_rule_base, load_scenario
 
 PARAMS = LeadershipParams(leader_timeout_s=0.5, listen_s=0.2, boot_patience_s=3.0)
 PERIOD_S = 0.05  # broadcast period at 20 Hz
@@ -420,3 +444,386 @@ def test_handover_offset_starts_at_the_new_leader_and_shrinks_at_its_speed() -> 
     assert math.hypot(*offset) == pytest.approx(0.3)
     assert handover_offset((0.3, -0.4), 5.0, 0.1) == ((0.0, 0.0), (0.0, 0.0))
     assert handover_offset((0.0, 0.0), 1.0, 0.1) == ((0.0, 0.0), (0.0, 0.0))
+
+
+# -- lockstep: frames only -----------------------------------------------------------------
+
+
+def test_in_lockstep_a_gone_token_does_not_count_only_silence_does() -> None:
+    swarm = {i: robot(i) for i in range(3)}
+    for m in swarm.values():
+        m.use_tokens = False
+    run_swarm(swarm, 0.0, 2.0)
+    for m in swarm.values():
+        m.set_alive(0, False, 2.0)  # the token goes while its frames still come
+    claims = run_swarm(swarm, 2.0, 3.0)
+    assert {(leader, term) for _, leader, term in claims} == {(0, 0)}
+    assert swarm[1].is_live(0, 3.0) and not swarm[1].is_leader
+    last_s = claims[-1][0]
+    del swarm[0]
+    claims = run_swarm(swarm, 3.0, 4.0)
+    first_s, first_leader, first_term = claims[0]
+    assert (first_leader, first_term) == (1, 1)
+    timeout_s = PARAMS.leader_timeout_s
+    assert last_s + timeout_s < first_s <= last_s + timeout_s + PERIOD_S + 1e-9
+
+
+def test_in_lockstep_a_booting_peer_with_its_token_up_but_unheard_is_not_live() -> None:
+    follower = robot(2, boot_s=10.0)
+    follower.use_tokens = False
+    follower.set_alive(0, True, 10.1)
+    follower.set_alive(1, True, 10.1)
+    assert not follower.is_live(1, 10.2)
+    follower.update(13.1)  # the boot patience runs out: nobody live below it, it leads
+    assert follower.is_leader and follower.term == 1
+
+
+def test_in_lockstep_the_failover_does_not_depend_on_when_token_events_arrive() -> None:
+    def failover(token_gone_s: float) -> list[tuple[float, int, int]]:
+        """Robot 0 dies at 5 s; the others see its token go at token_gone_s (a whole number
+        of broadcast periods later, so the broadcasts keep their phase)."""
+        swarm = {i: robot(i) for i in range(3)}
+        for m in swarm.values():
+            m.use_tokens = False
+        claims = run_swarm(swarm, 0.0, 5.0)
+        del swarm[0]
+        claims += run_swarm(swarm, 5.0, token_gone_s)
+        for m in swarm.values():
+            m.set_alive(0, False, token_gone_s)
+        claims += run_swarm(swarm, token_gone_s, 8.0)
+        return [(round(t_s, 6), leader, term) for t_s, leader, term in claims]
+
+    assert failover(5.05) == failover(5.35) == failover(7.5)
+
+
+# -- rejoin ------------------------------------------------------------------------------------
+
+
+def test_rejoin_slot_starts_where_the_robot_is_and_ends_in_its_slot() -> None:
+    start, slot = (2.0, 0.3), (1.2, 2.6)
+    assert rejoin_slot(start, slot, 0.0, 0.45) == start
+    assert rejoin_slot(start, slot, 1e6, 0.45) == slot
+    assert rejoin_slot(slot, slot, 0.0, 0.45) == slot
+
+
+def test_rejoin_slot_moves_at_its_speed_along_the_path() -> None:
+    start, slot = (1.2, 0.0), (1.2, math.pi / 2)  # a quarter circle of radius 1.2 m
+    path_m = 1.2 * math.pi / 2
+    halfway = rejoin_slot(start, slot, 0.5 * path_m / 0.45, 0.45)
+    assert halfway == pytest.approx((1.2, math.pi / 4))
+    just_before = rejoin_slot(start, slot, 0.99 * path_m / 0.45, 0.45)
+    assert just_before != slot and just_before[1] == pytest.approx(0.99 * math.pi / 2)
+
+
+def test_rejoin_slot_swings_the_shorter_way_round_and_never_nearer_the_leader() -> None:
+    start, slot = (2.8, math.radians(-10.0)), (1.2, math.radians(150.0))
+    # anticlockwise is 160°, clockwise 200°: it turns anticlockwise
+    angles = [rejoin_slot(start, slot, t, 0.45)[1] for t in np.linspace(0.0, 20.0, 200)]
+    assert np.all(np.diff(angles) >= 0.0)
+    distances = [rejoin_slot(start, slot, t, 0.45)[0] for t in np.linspace(0.0, 20.0, 200)]
+    assert min(distances) == pytest.approx(1.2)
+    across = rejoin_slot((1.2, math.radians(170.0)), (1.2, math.radians(-170.0)), 0.5, 0.45)
+    assert across[1] > math.radians(170.0)  # through 180°, not back through 0°
+
+
+# -- the firmware's side: stopped peers ----------------------------------------------------------
+
+
+PAPER = Path(__file__).resolve().parents[1] / "configs" / "scenarios" / "paper.yaml"
+KEY = key_from_secret("leadership test secret")
+MS = 1_000_000
+NS_PER_S = 1_000_000_000
+
+
+def lone_firmware(name: str) -> tuple[Fabric, Firmware]:
+    scenario = load_scenario(PAPER)
+    fabric = Fabric(FabricConfig(n_sonar=12))
+    drivers = Drivers.attach(fabric.bus, 12)
+    mission = RobotMission.from_scenario(scenario, name, load_rule_base(scenario))
+    firmware = Firmware(mission, drivers, KEY)
+    firmware.boot(fabric.tick)
+    return fabric, firmware
+
+
+def peer_frame(sender: int, sequence: int, t_ns: int, x_m: float, xdot_mps: float) -> bytes:
+    frame = RadioFrame(
+        role=Role.LEADER if sender == 0 else Role.FOLLOWER,
+        sender_id=sender,
+        sequence=sequence,
+        timestamp_ns=t_ns,
+        x_m=x_m,
+        y_m=0.5,
+        theta_rad=math.pi / 2,
+        xdot_mps=xdot_mps,
+        ydot_mps=0.0,
+        thetadot_radps=0.0,
+        localised=True,
+    )
+    return encode(frame, KEY)
+
+
+def tick(fabric: Fabric, firmware: Firmware, t_ns: int) -> None:
+    apply_sense(fabric, SenseMessage((0,) * 4, (None,) * 12, FixSample(0.0, -1.0, 1.57, t_ns)))
+    firmware.control_tick(t_ns)
+    fabric.tick(10 * MS)
+
+
+def test_a_silent_peer_is_held_where_it_coasted_to_as_a_stopped_body_until_heard() -> None:
+    fabric, firmware = lone_firmware("robot3")
+    firmware.lockstep = True
+    sequence = initial_sequence(0)
+    for k in range(20):  # robot2 (index 1) moves along x at 0.5 m/s, heard every 50 ms
+        t_ns = k * 10 * MS
+        if k % 5 == 0:
+            firmware.receive(peer_frame(1, sequence, t_ns, 0.5 * t_ns / NS_PER_S, 0.5), t_ns)
+            sequence = next_sequence(sequence)
+        tick(fabric, firmware, t_ns)
+    last_s = 0.15
+    coast_s = firmware.mission.leadership.stopped_coast_s
+    t_ns = 200 * MS
+    while t_ns / NS_PER_S <= last_s + firmware.mission.leadership.leader_timeout_s:
+        tick(fabric, firmware, t_ns)
+        assert firmware.last_inputs is not None
+        assert not bool(np.asarray(firmware.last_inputs.peer_stopped)[1])
+        t_ns += 10 * MS
+    for _ in range(50):  # silent past the time-out: stopped, and never stale
+        tick(fabric, firmware, t_ns)
+        t_ns += 10 * MS
+    inputs = firmware.last_inputs
+    assert inputs is not None and inputs.peer_stopped is not None
+    assert bool(inputs.peer_stopped[1]) and bool(inputs.peer_valid[1])
+    assert inputs.peer_stamp_s[1] == pytest.approx(t_ns / NS_PER_S - 0.01)
+    assert inputs.peer_pose[1, 0] == pytest.approx(0.5 * (last_s + coast_s))
+    assert np.all(inputs.peer_rate[1] == 0.0)
+    firmware.receive(peer_frame(1, sequence, t_ns, 2.0, 0.5), t_ns)
+    tick(fabric, firmware, t_ns)
+    inputs = firmware.last_inputs
+    assert inputs is not None and inputs.peer_stopped is not None
+    assert not bool(inputs.peer_stopped[1]) and inputs.peer_pose[1, 0] == pytest.approx(2.0)
+
+
+def test_a_peer_state_dropped_on_resume_does_not_come_back_as_a_stopped_body() -> None:
+    fabric, firmware = lone_firmware("robot3")
+    t_ns = 0
+    firmware.receive(peer_frame(1, initial_sequence(0), 0, 0.0, 0.5), 0)
+    for _ in range(80):  # robot2 silent past the time-out: held as a stopped body
+        tick(fabric, firmware, t_ns)
+        t_ns += 10 * MS
+    assert firmware.peer_down[1]
+    t_ns += 3 * NS_PER_S  # this robot was frozen
+    firmware.resume(t_ns)
+    tick(fabric, firmware, t_ns)
+    inputs = firmware.last_inputs
+    assert inputs is not None and inputs.peer_stopped is not None
+    assert not np.isfinite(firmware.peer_stamp_s).any() and not inputs.peer_valid.any()
+    assert not inputs.peer_stopped.any()
+
+
+# -- whole swarms in one process: real firmware against the world engine ---------------------
+
+
+@dataclass
+class Flight:
+    """One run of the paper's swarm with faults: true poses and the frames sent, per tick."""
+
+    t_s: list[float] = field(default_factory=list)
+    pose: list[np.ndarray] = field(default_factory=list)
+    acting: list[int | None] = field(default_factory=list)
+    frames: list[tuple[float, int, bool, int]] = field(default_factory=list)
+    """(t_s, sender, claims the lead, term) of every frame broadcast."""
+    collisions: int = 0
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(self.pose), np.array(self.frames)
+
+    def error_m(self, k: int, robot: int, leader: int, scenario_slots: list) -> float:
+        pose = self.pose[k]
+        if robot == leader:
+            reference, _ = TRAJECTORY.evaluate(self.t_s[k])
+            return math.hypot(pose[robot, 0] - reference[0], pose[robot, 1] - reference[1])
+        distance_m, angle_rad = slot_of(robot, leader, LEADER, scenario_slots)
+        slot = follower_slot_in_world(pose[leader], distance_m, angle_rad)
+        return math.hypot(pose[robot, 0] - float(slot[0]), pose[robot, 1] - float(slot[1]))
+
+    def back_in_formation_s(self, robot: int, leader: int, from_s: float) -> float | None:
+        """The first time after from_s from which the robot stays under 5 cm for a second."""
+        since = None
+        for k, t_s in enumerate(self.t_s):
+            if t_s < from_s:
+                continue
+            if self.error_m(k, robot, leader, SLOTS_PAPER) < 0.05:
+                since = t_s if since is None else since
+                if t_s - since >= 1.0:
+                    return since
+            else:
+                since = None
+        return None
+
+
+SCENARIO = load_scenario(PAPER)
+TRAJECTORY = SCENARIO.trajectory.build()
+LEADER = SCENARIO.leader_index
+SLOTS_PAPER = [
+    (r.slot.distance_m, math.radians(r.slot.angle_deg)) if r.slot else (0.0, 0.0)
+    for r in SCENARIO.robots
+]
+
+
+def fly(
+    end_s: float,
+    lockstep: bool,
+    kill: dict[int, float] | None = None,
+    restart: dict[int, float] | None = None,
+    freeze: dict[int, tuple[float, float]] | None = None,
+    token_delay_s: float = 0.01,
+) -> Flight:
+    """The paper's swarm as `FirmwareSwarm` flies it, with robots killed (no more ticks, motors
+    braked), restarted (a fresh fabric and firmware) or frozen for a while (no ticks, braked,
+    then `Firmware.resume`).  Peers see a killed robot's token go `token_delay_s` later and a
+    frozen one's after its 1 s lease, and see it back when it restarts or continues."""
+    kill, restart, freeze = kill or {}, restart or {}, freeze or {}
+
+    def tick_of(t_s: float) -> int:
+        return round(t_s * 100)
+
+    out_ticks = {r: (tick_of(at_s), tick_of(restart.get(r, end_s))) for r, at_s in kill.items()}
+    out_ticks |= {
+        r: (tick_of(at_s), tick_of(at_s + hold_s)) for r, (at_s, hold_s) in freeze.items()
+    }
+    tokens = {(tick_of(at_s + token_delay_s), r, False) for r, at_s in kill.items()}
+    tokens |= {(tick_of(at_s), r, True) for r, at_s in restart.items()}
+    tokens |= {(tick_of(at_s + 1.0), r, False) for r, (at_s, _) in freeze.items()}
+    tokens |= {(tick_of(at_s + hold_s), r, True) for r, (at_s, hold_s) in freeze.items()}
+    swarm = FirmwareSwarm(SCENARIO, KEY)
+    world, names, period_ns = swarm.world, SCENARIO.robot_names, swarm.period_ns
+    for robot_ in swarm.robots:
+        robot_.firmware.lockstep = lockstep
+    flight = Flight()
+    for k in range(tick_of(end_s)):
+        now_ns = k * period_ns
+        t_s = now_ns / NS_PER_S
+        for robot_index, at_s in restart.items():
+            if k == tick_of(at_s):
+                fabric = Fabric(FabricConfig(n_sonar=12))
+                drivers = Drivers.attach(fabric.bus, 12)
+                rules = load_rule_base(SCENARIO)
+                mission = RobotMission.from_scenario(SCENARIO, names[robot_index], rules)
+                firmware = Firmware(mission, drivers, KEY)
+                firmware.boot(fabric.tick)
+                firmware.lockstep = lockstep
+                swarm.robots[robot_index] = FirmwareRobot(fabric, drivers, firmware)
+        for robot_index, (at_s, hold_s) in freeze.items():
+            if k == tick_of(at_s + hold_s):
+                swarm.robots[robot_index].firmware.resume(now_ns)
+        out = {r for r, (down, up) in out_ticks.items() if down <= k < up}
+        for at_tick, robot_index, alive in sorted(tokens):
+            if at_tick == k:
+                for j, other in enumerate(swarm.robots):
+                    if j != robot_index and j not in out:
+                        other.firmware.set_peer_alive(names[robot_index], alive, now_ns)
+        for i, (robot_, sense) in enumerate(zip(swarm.robots, world.sense(), strict=True)):
+            if i not in out:
+                apply_sense(robot_.fabric, sense)
+        for receiver, _sender, payload in world.due_frames():
+            if receiver not in out:
+                swarm.robots[receiver].firmware.receive(payload, now_ns)
+        for i, robot_ in enumerate(swarm.robots):
+            if i in out:
+                continue
+            report = robot_.firmware.control_tick(now_ns)
+            if report.frame is not None:
+                world.transmit(i, report.frame)
+                sent = parse_frame(report.frame, KEY)
+                assert isinstance(sent, RadioFrame)
+                flight.frames.append((t_s, i, sent.role == Role.LEADER, sent.term))
+        leaders = [i for i, r in enumerate(swarm.robots) if i not in out and r.firmware.is_leader]
+        acting = min(leaders) if leaders else None
+        if acting is not None and acting != world.metrics.leader_index:
+            term = swarm.robots[acting].firmware.leadership_at(now_ns).term
+            world.metrics.set_leader(acting, term, t_s)
+        duty = np.array([r.fabric.hw_read_actuation().duty for r in swarm.robots])
+        duty[sorted(out)] = 0.0  # braked: the world's act time-out, one period on
+        world.advance(duty, period_ns)
+        for i, robot_ in enumerate(swarm.robots):
+            if i not in out:
+                robot_.fabric.tick(period_ns)
+        flight.t_s.append(world.t_s)
+        flight.pose.append(world.bodies.pose.copy())
+        flight.acting.append(acting)
+    flight.collisions = int(world.summary()["collisions"])  # type: ignore[call-overload]
+    return flight
+
+
+KILL_S = 12.0
+RESTART_S = 30.0  # 18 s after the kill, as the integration test: one lap, the parked body reached
+NEW, OTHER = 1, 2
+
+
+def first_claim_after(flight: Flight, robot_index: int, after_s: float) -> tuple[float, int]:
+    return next((t, term) for t, s, leads, term in flight.frames if s == robot_index and leads
+                and t > after_s)  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "real-time tokens"])
+def test_killed_leader_is_replaced_without_a_collision_and_returns_as_a_follower(
+    lockstep: bool,
+) -> None:
+    flight = fly(50.0, lockstep, kill={LEADER: KILL_S}, restart={LEADER: RESTART_S})
+    last_old_s = max(t for t, s, _, _ in flight.frames if s == LEADER and t < RESTART_S)
+    first_new_s, term = first_claim_after(flight, NEW, KILL_S)
+    new_back = flight.back_in_formation_s(NEW, NEW, first_new_s)
+    other_back = flight.back_in_formation_s(OTHER, NEW, first_new_s)
+    old_back = flight.back_in_formation_s(LEADER, NEW, RESTART_S)
+    gaps = [
+        math.hypot(*(p[a, :2] - p[b, :2])) - 2 * 0.3
+        for p in flight.pose[round(KILL_S * 100) :]
+        for a, b in ((0, 1), (0, 2), (1, 2))
+    ]
+    print(
+        f"\nleader kill ({'lockstep' if lockstep else 'tokens'}): first claim of robot2 "
+        f"{(first_new_s - last_old_s) * 1000:.0f} ms after robot1's last frame (term {term}); "
+        f"robot2 on the trajectory after {new_back and new_back - first_new_s:.2f} s, robot3 in "
+        f"its slot after {other_back and other_back - first_new_s:.2f} s, robot1 in robot2's "
+        f"old slot {old_back and old_back - RESTART_S:.2f} s after its restart; smallest gap "
+        f"between bodies {min(gaps):.3f} m; collisions {flight.collisions}"
+    )
+    assert flight.collisions == 0
+    assert 0.0 < first_new_s - last_old_s <= 1.0 and term == 1
+    assert new_back is not None and new_back - first_new_s <= 15.0
+    assert other_back is not None and other_back - first_new_s <= 15.0
+    assert old_back is not None
+    returned = [(leads, t_) for t, s, leads, t_ in flight.frames if s == LEADER and t >= RESTART_S]
+    assert returned and not any(leads for leads, _ in returned) and returned[-1][1] == term
+    per_period: dict[int, set[int]] = {}
+    for t, s, leads, _ in flight.frames:
+        if leads:
+            per_period.setdefault(math.floor(t / PERIOD_S + 1e-6), set()).add(s)
+    assert all(len(leaders) == 1 for leaders in per_period.values())
+
+
+@pytest.mark.slow
+def test_a_failover_in_lockstep_replays_whenever_the_token_events_arrive() -> None:
+    first = fly(25.0, True, kill={LEADER: KILL_S}, token_delay_s=0.01)
+    second = fly(25.0, True, kill={LEADER: KILL_S}, token_delay_s=0.37)
+    poses_a, frames_a = first.arrays()
+    poses_b, frames_b = second.arrays()
+    assert np.array_equal(frames_a, frames_b) and np.array_equal(poses_a, poses_b)
+    # With tokens counted (real time) the token's instant does change the run.
+    third = fly(25.0, False, kill={LEADER: KILL_S}, token_delay_s=0.37)
+    assert not np.array_equal(third.arrays()[1], frames_b)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("freeze_s", [6.0, 8.0, 16.0, 24.0])
+def test_a_frozen_follower_is_avoided_and_back_in_its_slot_within_10_s(freeze_s: float) -> None:
+    hold_s = 3.0
+    flight = fly(freeze_s + hold_s + 12.0, False, freeze={NEW: (freeze_s, hold_s)})
+    back_s = freeze_s + hold_s
+    in_slot = flight.back_in_formation_s(NEW, LEADER, back_s)
+    print(
+        f"\nrobot2 frozen at {freeze_s:.0f} s for {hold_s:.0f} s: back under 5 cm "
+        f"{in_slot and in_slot - back_s:.2f} s after it continued; collisions {flight.collisions}"
+    )
+    assert flight.collisions == 0
+    assert in_slot is not None and in_slot - back_s <= 10.0
