@@ -405,6 +405,14 @@ def _cmd_up(args: argparse.Namespace) -> int:
         f"({summary['clock_mode'].replace('_', ' ')}; real-time factor {factor:.2f})"
     )
     _print_headline(summary)
+    guard = summary.get("starvation_guard") or {}
+    if guard.get("enabled") and guard.get("holds"):
+        passed_over = {name: n for name, n in guard["lapses"].items() if n}
+        print(
+            f"  starvation guard: time held {guard['held_s']:.1f} s in {guard['holds']} holds "
+            f"for late robots (longest {1000 * guard['longest_hold_s']:.0f} ms); passed over: "
+            f"{passed_over or 'none'}"
+        )
     timings = summary.get("control_timing") or {}
     for name, timing in timings.items() if summary["clock_mode"] == "real_time" else ():
         if timing:
