@@ -18,13 +18,13 @@ False) is not used either, and a robot with no fix broadcasts nothing.
 
 When the sense messages stop (the scheduler's `SafeStop`), `safe_stop` turns the motors off
 through the motor driver and stops kicking the watchdog, so the watchdog IP cuts the PWM at
-its timeout even if the driver's writes were lost.  The first tick after the gap (`resume`)
-starts from a fresh control state: it re-localises from the next fix, its PID and avoidance
-state start from zero, and peer states outside the decoder's age window are dropped.  On a new
-world epoch (`new_world_epoch`: the world restarted and its clock jumped) every peer state and
-replay window goes, whatever its stamp.
-Time is an argument (`now_ns`); the class opens no
-socket and reads no clock, so a test can run it against a fabric model in one process.
+its timeout even if the driver's writes were lost.  The first tick after the gap (`resume`,
+or a tick more than `RESUME_GAP_PERIODS` after the previous one) starts from a fresh control
+state: it re-localises from the next fix, its PID and avoidance state start from zero, and peer
+states outside the decoder's age window are dropped.  On a new world epoch (`new_world_epoch`:
+the world restarted and its clock jumped) every peer state and replay window goes, whatever its
+stamp.  Time is an argument (`now_ns`); the class opens no socket and reads no clock, so a test
+can run it against a fabric model in one process.
 
 Who leads is not fixed by the mission: `Leadership` (robot_firmware/leadership.py) hears the
 term and role of every accepted frame (and the peers' liveliness, `set_peer_alive`; not counted
@@ -82,6 +82,11 @@ from swarm_config.scenario import Scenario, ScenarioError
 
 FloatArray = NDArray[np.float64]
 NS_PER_S = 1_000_000_000
+RESUME_GAP_PERIODS = 10
+"""A tick this many control periods (or more) after the previous one, or before it, starts
+from fresh state as after `Firmware.resume` (the tick scheduler's sense time-out is as long):
+a real-time robot continued after a freeze may run a tick on a stale sense message first, and
+only the next one on the world's time."""
 
 
 @dataclass(frozen=True)
@@ -227,6 +232,8 @@ class Firmware:
         self.safe_stopped = False
         """Whether the motors are held off for want of sense messages (`safe_stop`)."""
         self._fresh_state_pending = False
+        self._last_tick_ns: int | None = None
+        self._resume_gap_ns = round(RESUME_GAP_PERIODS * mission.params.control_period_s * NS_PER_S)
         self.last_state: ControllerState | None = None
         self.last_inputs: ControlInputs | None = None
 
@@ -425,6 +432,7 @@ class Firmware:
         self._next_sonar_ns = 0
         self._fresh_state_pending = True
         self._rejoin_pending = True
+        self._last_tick_ns = now_ns
         self.leadership_at(now_ns).resume(now_ns / NS_PER_S)
 
     def new_world_epoch(self, now_ns: int) -> None:
@@ -441,9 +449,13 @@ class Firmware:
         self.resume(now_ns)
 
     def control_tick(self, now_ns: int) -> TickReport:
-        """Run the 5C levels once at time now_ns."""
+        """Run the 5C levels once at time now_ns (after a jump of the tick clock: on fresh
+        state, as after `resume`)."""
         d = self.drivers
         t_s = now_ns / NS_PER_S
+        last_ns, self._last_tick_ns = self._last_tick_ns, now_ns
+        if last_ns is not None and not 0 <= now_ns - last_ns <= self._resume_gap_ns:
+            self.resume(now_ns)
         # Level 1: connection.
         counts = d.encoders.read_counts()
         if self._fresh_state_pending:

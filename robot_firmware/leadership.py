@@ -18,6 +18,13 @@ s < s' (the lower index wins a tie).  A robot always follows the best claim it h
 is not known to be gone, or while its token is there and it has not been heard at all yet (up
 and still booting).  The robot itself is always live.
 
+**Back from a gap.**  A robot that was not updated for `update_gap_s` (frozen, safe-stopped,
+its clock jumped) heard nothing meanwhile, so a peer's silence counts only from its next update
+(`listening_since_s`); and since its own link to the router may have lapsed too (every peer's
+token then goes and comes back as it reconnects), tokens count again only after it has listened
+for `leader_timeout_s`.  So a robot continued after SIGSTOP never takes the silence it slept
+through for a lost leader.
+
 **Lockstep: frames only.**  A token comes and goes at a wall-clock instant, which falls on a
 different tick of a lockstep run each time it is replayed.  So in lockstep (`use_tokens` off,
 set by the firmware from the world's clock mode) tokens are recorded but do not count: a peer
@@ -122,6 +129,10 @@ class LeadershipParams(BaseModel):
     constant (50 ms)."""
     listen_s: PositiveFloat = 0.2
     """How long the designated leader listens after booting before it claims term 0."""
+    update_gap_s: PositiveFloat = 0.1
+    """A gap this long between the robot's own updates (it was frozen, safe-stopped, or its
+    clock jumped) means it heard nothing meanwhile: silence counts again from its next update
+    (`Leadership.listening_since_s`)."""
     boot_patience_s: PositiveFloat = 3.0
     """How long a booting robot waits for the first claim of the leader it expects."""
 
@@ -176,6 +187,9 @@ class Leadership:
     claim_heard: bool = field(init=False, default=False)
     """Whether any peer's claim to lead was heard since boot (or the last `resume`)."""
     last_update_s: float = field(init=False, default=-math.inf)
+    listening_since_s: float = field(init=False)
+    """Since when this robot has been updated without a gap (boot, or its last gap): a peer's
+    silence before then is no evidence that the peer is gone."""
     listen_from_s: float = field(init=False, default=0.0)
     """Boot (or the last `resume`): the designated leader listens `listen_s` from here."""
     peers: list[PeerRecord] = field(init=False)
@@ -196,6 +210,7 @@ class Leadership:
         self.waiting_since_s = self.boot_s + max(p.boot_patience_s - p.leader_timeout_s, 0.0)
         self.claim_heard = False
         self.listen_from_s = self.boot_s
+        self.listening_since_s = self.boot_s
         if self.index != self.designated_leader:
             self.leader = self.designated_leader
         elif self.boot_s <= 0.0:
@@ -239,6 +254,8 @@ class Leadership:
         back, it does not act on who led before: it follows whoever claims next, keeping the
         term, and the designated leader listens again before it claims term 0."""
         gap_s = t_s - self.last_update_s
+        if not 0.0 <= gap_s <= self.params.update_gap_s:
+            self.listening_since_s = t_s
         if 0.0 <= gap_s <= self.params.leader_timeout_s:
             return
         self.claim_heard = False
@@ -255,6 +272,9 @@ class Leadership:
 
     def update(self, t_s: float) -> None:
         """Run the time-outs at `t_s`: detect a lost leader and elect (once per tick)."""
+        gap_s = t_s - self.last_update_s
+        if self.last_update_s > -math.inf and not 0.0 <= gap_s <= self.params.update_gap_s:
+            self.listening_since_s = t_s  # deaf meanwhile: the silence proves nothing
         self.last_update_s = t_s
         if self.is_leader:
             return
@@ -277,11 +297,15 @@ class Leadership:
         if robot == self.index:
             return True
         peer = self.peers[robot]
-        if self.use_tokens and peer.token_gone:
+        tokens = self._tokens_count(t_s)
+        if tokens and peer.token_gone:
             return False
-        if self.use_tokens and peer.token_seen and peer.last_heard_s == -math.inf:
+        if tokens and peer.token_seen and peer.last_heard_s == -math.inf:
             return True  # up and still booting: it will speak
-        return t_s - peer.last_heard_s <= self.params.leader_timeout_s
+        if peer.last_heard_s == -math.inf:
+            return False
+        heard_s = max(peer.last_heard_s, self.listening_since_s)
+        return t_s - heard_s <= self.params.leader_timeout_s
 
     def acting_leader(self, t_s: float) -> int | None:
         """The robot whose trajectory the formation follows at `t_s`, or None (none known, or
@@ -304,14 +328,21 @@ class Leadership:
             and t_s >= self.listen_from_s + self.params.listen_s
         )
 
+    def _tokens_count(self, t_s: float) -> bool:
+        """Tokens count in real time once this robot has listened for `leader_timeout_s`
+        without a gap: back from one (a freeze), its own link to the router may have lapsed,
+        and every peer's token then goes and comes back as it reconnects."""
+        return self.use_tokens and t_s - self.listening_since_s >= self.params.leader_timeout_s
+
     def _leader_lost(self, t_s: float) -> bool:
-        if self.leader is not None and self.use_tokens:
+        if self.leader is not None and self._tokens_count(t_s):
             peer = self.peers[self.leader]
             if peer.token_gone:
                 return True
             if peer.token_seen and peer.last_heard_s == -math.inf:
                 return False  # its process is up and has not spoken yet: still booting
-        return t_s - self.waiting_since_s > self.params.leader_timeout_s
+        waited_s = t_s - max(self.waiting_since_s, self.listening_since_s)
+        return waited_s > self.params.leader_timeout_s
 
     def _hear_claim(self, sender: int, term: int, t_s: float) -> None:
         if sender == self.leader and term == self.term:

@@ -40,7 +40,9 @@ from robot_firmware.pins import apply_sense
 from services.sim.firmware_swarm import FirmwareRobot, FirmwareSwarm
 from swarm_config.scenario import load_rule_base, load_scenario
 
-PARAMS = LeadershipParams(leader_timeout_s=0.5, listen_s=0.2, boot_patience_s=3.0)
+PARAMS = LeadershipParams(leader_timeout_s=0.5, listen_s=0.2, boot_patience_s=3.0, update_gap_s=1.0)
+"""The table's tests update a robot only at the instants that matter, so a gap between updates
+counts as one (the robot deaf meanwhile) only past 1 s; `update_gap_s` has tests of its own."""
 PERIOD_S = 0.05  # broadcast period at 20 Hz
 TICK_S = 0.01
 
@@ -446,6 +448,78 @@ def test_handover_offset_starts_at_the_new_leader_and_shrinks_at_its_speed() -> 
     assert handover_offset((0.0, 0.0), 1.0, 0.1) == ((0.0, 0.0), (0.0, 0.0))
 
 
+# -- a robot back from a gap of its own ------------------------------------------------------
+
+
+def ticking(index: int, until_s: float) -> Leadership:
+    """A robot with the default parameters, updated every tick from 0 to until_s and hearing
+    robot 0 lead term 0 every broadcast period."""
+    machine = Leadership(index=index, count=3, designated_leader=0, boot_s=0.0)
+    for k in range(round(until_s / TICK_S) + 1):
+        t_s = k * TICK_S
+        if k % 5 == 0:
+            machine.hear(0, 0, True, t_s)
+            machine.hear(3 - index, 0, False, t_s)
+        machine.update(t_s)
+    return machine
+
+
+def test_a_robot_back_from_a_gap_does_not_take_the_silence_it_missed_for_a_lost_leader() -> None:
+    # Frozen from 2 s to 4 s, then a tick on a stale time first, as a real-time robot after
+    # SIGCONT may run on the first sense message it finds queued.
+    follower = ticking(1, 2.0)
+    follower.resume(2.1)  # within the leader time-out of its last update: changes nothing
+    follower.update(2.1)
+    follower.update(4.05)  # the world's time now: two seconds it did not hear
+    assert following(follower, 0, 0) and follower.acting_leader(4.05) == 0
+    assert follower.is_live(2, 4.05)  # robot3 is not taken for gone either
+    follower.hear(0, 0, True, 4.1)
+    follower.update(4.5)
+    assert following(follower, 0, 0)
+
+
+def test_a_robot_back_from_a_gap_ignores_the_tokens_its_own_reconnection_takes_away() -> None:
+    # Frozen past its lease: on SIGCONT its session reconnects, and every peer's token goes
+    # and comes back; a queued claim of the leader is heard first.
+    follower = ticking(1, 2.0)
+    follower.resume(4.0)
+    follower.hear(0, 0, True, 4.0)
+    follower.set_alive(0, False, 4.0)
+    follower.set_alive(2, False, 4.0)
+    follower.update(4.0)
+    assert following(follower, 0, 0) and not follower.is_leader
+    follower.set_alive(0, True, 4.02)
+    follower.set_alive(2, True, 4.02)
+    follower.hear(0, 0, True, 4.05)
+    follower.update(4.05)
+    assert following(follower, 0, 0)
+    # Once it has listened for the time-out, a token that goes counts again at once.
+    for k in range(1, 60):
+        t_s = 4.05 + k * TICK_S
+        if k % 5 == 0:
+            follower.hear(0, 0, True, t_s)
+            follower.hear(2, 0, False, t_s)
+        follower.update(t_s)
+    assert following(follower, 0, 0)
+    follower.set_alive(0, False, 4.65)
+    follower.update(4.65)
+    assert follower.is_leader and follower.term == 1
+
+
+def test_after_a_gap_a_leader_silent_for_the_time_out_is_lost_again() -> None:
+    follower = ticking(1, 2.0)
+    t_s = 4.0
+    while t_s < 4.0 + 0.5 + TICK_S / 2:  # robot 0 stays silent; robot3 speaks
+        if round(t_s / TICK_S) % 5 == 0:
+            follower.hear(2, 0, False, t_s)
+        follower.update(t_s)
+        assert not follower.is_leader
+        t_s += TICK_S
+    follower.update(t_s)
+    assert follower.is_leader and follower.term == 1
+    assert not follower.is_live(0, t_s)
+
+
 # -- lockstep: frames only -----------------------------------------------------------------
 
 
@@ -617,6 +691,21 @@ def test_a_peer_state_dropped_on_resume_does_not_come_back_as_a_stopped_body() -
     assert inputs is not None and inputs.peer_stopped is not None
     assert not np.isfinite(firmware.peer_stamp_s).any() and not inputs.peer_valid.any()
     assert not inputs.peer_stopped.any()
+
+
+def test_a_tick_long_after_the_previous_one_starts_from_fresh_state() -> None:
+    fabric, firmware = lone_firmware("robot3")
+    firmware.receive(peer_frame(0, initial_sequence(0), 0, 0.0, 0.5), 0)
+    for k in range(50):
+        tick(fabric, firmware, k * 10 * MS)
+    assert firmware.state.estimator.localised and firmware.is_leader is False
+    assert firmware.leadership is not None and firmware.leadership.leader == 0
+    # No resume from the runtime: the next tick simply comes two seconds later.
+    apply_sense(fabric, SenseMessage((0,) * 4, (None,) * 12, None))
+    firmware.control_tick(2_500 * MS)
+    assert not firmware.state.estimator.localised  # re-localising, on fresh state
+    assert not np.isfinite(firmware.peer_stamp_s).any()  # the 2 s old peer state is gone
+    assert firmware.leadership.leader is None and not firmware.is_leader  # listening again
 
 
 # -- whole swarms in one process: real firmware against the world engine ---------------------
