@@ -23,8 +23,9 @@ where it lost power) the side is chosen once per encounter and kept in
 `ControllerState.circulation_side`.  Neither is in the paper, and neither acts in its scenario,
 where no two robots come within the influence distance.
 
-Sonar echoes that fall on a peer whose position is known from the radio are left to the
-robot-robot term, so a peer is not repelled twice.
+Sonar echoes that fall on a live peer whose position is known from the radio are left to the
+robot-robot term, so a peer is not repelled twice; echoes on a stopped peer are kept, since its
+position is only where it was last heard to coast to.
 
 The tick is compiled (numba): `control_robot` runs it for one robot from the compiled forms of
 each equation (kinematics, estimation, formation, apf, fuzzy, pid), and `control_step` runs it
@@ -425,7 +426,7 @@ def control_robot(
             echo_points[i, s, 1] = py
             explained = False
             for j in range(peers):
-                if echo and peer_ok[j] and not explained:
+                if echo and peer_ok[j] and not peer_stopped[i, j] and not explained:
                     explained = math.hypot(px - peer_pose[j, 0], py - peer_pose[j, 1]) < near_peer_m
             echo_valid[i, s] = echo and not explained
     else:

@@ -504,9 +504,15 @@ def control_step(
         peer_gap, peer_ok, params.apf_robot_gain, params.apf_influence_m, params.apf_min_gap_m
     )
     force = np.sum(peer_magnitude[..., None] * peer_dir, axis=-2)
+    stopped = (
+        np.zeros(peer_ok.shape, dtype=bool)
+        if inputs.peer_stopped is None
+        else np.broadcast_to(inputs.peer_stopped, peer_ok.shape)
+    )
     if inputs.sonar_fresh:
+        # Echoes on a stopped peer stay: its pose is only where it was last heard to coast to.
         echo_points, echo_valid = sonar_echo_points(
-            pose, inputs.sonar_range_m, peer_pose, peer_ok, params
+            pose, inputs.sonar_range_m, peer_pose, peer_ok & ~stopped, params
         )
     else:
         echo_points, echo_valid = state.echo_points_m, state.echo_valid
@@ -524,11 +530,6 @@ def control_step(
     # Level 3: the tangential part round every robot that repels: round a stopped one to the
     # side chosen when it began to repel (the goal and the other sources' push), kept while
     # it repels; round a live one anticlockwise.
-    stopped = (
-        np.zeros(peer_ok.shape, dtype=bool)
-        if inputs.peer_stopped is None
-        else np.broadcast_to(inputs.peer_stopped, peer_ok.shape)
-    )
     prior_side = (
         np.zeros(peer_ok.shape)
         if state.circulation_side is None
