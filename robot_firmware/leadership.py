@@ -18,6 +18,13 @@ s < s' (the lower index wins a tie).  A robot always follows the best claim it h
 is not known to be gone, or while its token is there and it has not been heard at all yet (up
 and still booting).  The robot itself is always live.
 
+**Not alone.**  A robot that hears no other live robot cannot tell being cut off (a radio
+partition) from being the last one left, so it does not take over: it waits without a leader,
+and without a leader a follower holds still (inactive), a stopped body where the others last
+heard it.  When the partition heals it hears the leader's claim and follows it again, and the
+formation is as before.  In real time a robot whose every peer's token is gone is the last one
+left and does take over; in lockstep (frames only) it waits.
+
 **Back from a gap.**  A robot that was not updated for `update_gap_s` (frozen, safe-stopped,
 its clock jumped) heard nothing meanwhile, so a peer's silence counts only from its next update
 (`listening_since_s`); and since its own link to the router may have lapsed too (every peer's
@@ -39,7 +46,8 @@ term's adoption or the leader's last claim; a leader not heard since this robot 
 while its token is there and it has not been heard at all yet: its process is up and still
 booting, as when containers start one by one.  While the
 leader is lost, the live robot with the lowest index (the lost leader excluded) raises the term
-to one above the highest it has seen and leads; the others wait for its claim.  If that
+to one above the highest it has seen and leads, if it is not alone (below); the others wait for
+its claim.  If that
 candidate dies too, it stops being live after the same time-out and the next one takes over.
 So a claim follows a death within `leader_timeout_s` plus one broadcast period (0.5 s + 50 ms
 at the defaults), or at the next tick when the runtime reports the token gone.
@@ -58,8 +66,10 @@ Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 | FOLLOWING(L)    | claim of L in the current term                   | FOLLOWING(L)    | same    |
 | FOLLOWING(L)    | frame of L without a claim, current term         | FOLLOWING(None) | same    |
 | FOLLOWING/LEAD. | any frame with a term above ours, no claim       | FOLLOWING(None) | T       |
-| FOLLOWING(L)    | `update`: L lost, this robot lowest live index   | LEADING         | max + 1 |
-| FOLLOWING(L)    | `update`: L lost, a lower index is live          | FOLLOWING(None) | same    |
+| FOLLOWING(L)    | `update`: L lost, this robot lowest live index,  | LEADING         | max + 1 |
+|                 | not alone                                        |                 |         |
+| FOLLOWING(L)    | `update`: L lost, a lower index is live, or      | FOLLOWING(None) | same    |
+|                 | this robot alone                                 |                 |         |
 | LEADING         | claim (T, s) that beats (term, self)             | FOLLOWING(s)    | T       |
 | LEADING         | claim that does not beat ours                    | LEADING         | same    |
 | any             | `resume` after a gap up to `leader_timeout_s`    | unchanged       | same    |
@@ -284,7 +294,7 @@ class Leadership:
         if not self._leader_lost(t_s):
             return
         live = [i for i in range(self.count) if i != self.leader and self.is_live(i, t_s)]
-        if min(live) == self.index:
+        if min(live) == self.index and self._has_company(live, t_s):
             term = max(self.term, self.highest_term_seen) + 1
             self._set(Phase.LEADING, self.index, term, t_s, "leader lost: lowest live index")
         elif self.leader is not None:
@@ -327,6 +337,15 @@ class Leadership:
             and not self.claim_heard
             and t_s >= self.listen_from_s + self.params.listen_s
         )
+
+    def _has_company(self, live: list[int], t_s: float) -> bool:
+        """Whether this robot may take over: another robot is live, or (tokens counting) every
+        other robot's token is gone, so it is the last one left.  Alone otherwise, it cannot
+        tell being cut off from being the last, and does not lead."""
+        if len(live) > 1:
+            return True
+        others = [peer for i, peer in enumerate(self.peers) if i != self.index]
+        return self._tokens_count(t_s) and all(peer.token_gone for peer in others)
 
     def _tokens_count(self, t_s: float) -> bool:
         """Tokens count in real time once this robot has listened for `leader_timeout_s`
