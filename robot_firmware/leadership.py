@@ -18,6 +18,25 @@ s < s' (the lower index wins a tie).  A robot always follows the best claim it h
 is not known to be gone, or while its token is there and it has not been heard at all yet (up
 and still booting).  The robot itself is always live.
 
+**Lockstep: frames only.**  A token comes and goes at a wall-clock instant, which falls on a
+different tick of a lockstep run each time it is replayed.  So in lockstep (`use_tokens` off,
+set by the firmware from the world's clock mode) tokens are recorded but do not count: a peer
+is live while heard within `leader_timeout_s` of simulation time, and a leader is lost once
+unheard for that long.  Then who leads, and when it changes, follows from the frames the world
+delivers and their simulation times alone, and a campaign that kills the leader replays.
+
+**Leader lost.**  The leader a robot follows is lost when its token is gone, or when no claim of
+it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: the
+term's adoption or the leader's last claim; a leader not heard since this robot booted gets
+`boot_patience_s`, since the robots of a swarm do not boot at the same instant), but never
+while its token is there and it has not been heard at all yet: its process is up and still
+booting, as when containers start one by one.  While the leader is lost, the live robot with
+the lowest index (the lost leader excluded) raises the term to one above the highest it has
+seen and leads, unless it is alone (below); the others wait for its claim.  If that candidate
+dies too, it stops being live after the same time-out and the next one takes over.  So a claim
+follows a death within `leader_timeout_s` plus one broadcast period (0.5 s + 50 ms at the
+defaults), or at the next tick when the runtime reports the token gone.
+
 **Not alone.**  A robot that hears no other live robot cannot tell being cut off (a radio
 partition) from being the last one left, so it does not take over: it waits without a leader,
 and without a leader a follower holds still (inactive), a stopped body where the others last
@@ -31,26 +50,6 @@ its clock jumped) heard nothing meanwhile, so a peer's silence counts only from 
 token then goes and comes back as it reconnects), tokens count again only after it has listened
 for `leader_timeout_s`.  So a robot continued after SIGSTOP never takes the silence it slept
 through for a lost leader.
-
-**Lockstep: frames only.**  A token comes and goes at a wall-clock instant, which falls on a
-different tick of a lockstep run each time it is replayed.  So in lockstep (`use_tokens` off,
-set by the firmware from the world's clock mode) tokens are recorded but do not count: a peer
-is live while heard within `leader_timeout_s` of simulation time, and a leader is lost once
-unheard for that long.  Then who leads, and when it changes, follows from the frames the world
-delivers and their simulation times alone, and a campaign that kills the leader replays.
-
-**Leader lost.**  The leader a robot follows is lost when its token is gone, or when no claim of
-it was heard for `leader_timeout_s` (counted from when the robot started waiting for it: the
-term's adoption or the leader's last claim; a leader not heard since this robot booted gets
-`boot_patience_s`, since the robots of a swarm do not boot at the same instant), but never
-while its token is there and it has not been heard at all yet: its process is up and still
-booting, as when containers start one by one.  While the
-leader is lost, the live robot with the lowest index (the lost leader excluded) raises the term
-to one above the highest it has seen and leads, if it is not alone (below); the others wait for
-its claim.  If that
-candidate dies too, it stops being live after the same time-out and the next one takes over.
-So a claim follows a death within `leader_timeout_s` plus one broadcast period (0.5 s + 50 ms
-at the defaults), or at the next tick when the runtime reports the token gone.
 
 Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 
@@ -87,9 +86,10 @@ that elected another leader, it hears that leader's claim or a later term in the
 follows, and takes the vacated slot (below).  Once a term above 0 was seen it never claims term 0
 again.
 
-No split brain: a robot partitioned from the rest that elected itself keeps its term only until
-it hears a claim that beats it (a higher term, or the same term from a lower index); then it
-follows, so two leaders never both act once they hear each other.
+No split brain: a robot alone never elects itself (above), and a leader partitioned from the
+rest (which the others replaced, or one of two groups that each elected) keeps its term only
+until it hears a claim that beats it (a higher term, or the same term from a lower index); then
+it follows, so two leaders never both act once they hear each other.
 
 **Handover.**  A new leader starts from where it is: its reference is the trajectory plus an
 offset that shrinks at `handover_speed_mps` (`handover_offset`), so it does not rush at the
