@@ -21,16 +21,14 @@ class RegisterPort:
 
     def read(self, address: int) -> int | None:
         """The word at `address`, or None (counted) when the bus refuses the read."""
-        result = self.bus.read(address)
-        if result.error is not None:
+        word = self.bus.read_word(address)
+        if word is None:
             self.errors += 1
-            return None
-        return result.value
+        return word
 
     def write(self, address: int, value: int) -> bool:
         """Write `value` to `address`; False (counted) when the bus refuses the write."""
-        result = self.bus.write(address, value)
-        if result.error is not None:
-            self.errors += 1
-            return False
-        return True
+        if self.bus.write_word(address, value):
+            return True
+        self.errors += 1
+        return False

@@ -12,7 +12,14 @@ Checks run in this order: address is an integer and word aligned, address decode
 a declared register, the value fits 32 bits (writes), the access kind allows the
 operation. The first failing check names the error.
 
-`RecordingBus` is a `Bus` that also keeps every access in order, for driver tests.
+`read_word` and `write_word` are the drivers' form of the same accesses: the value (or
+whether the write went through) instead of a `BusResult`, None or False when refused, with
+the same checks, counts, side effects and log.  Each absolute address that passed every check
+once is remembered with its peripheral and register offset (until the next `map`), so the
+firmware's own accesses to the same few dozen words skip the decoding; anything else takes
+the full path of `read` and `write`.  A subclass that overrides `read` or `write` (such as
+`RecordingBus`, which keeps every access in order for driver tests) gets word accesses that
+go through its overrides.
 """
 
 from __future__ import annotations
@@ -89,6 +96,17 @@ class Bus:
         self._errors: Counter[BusErrorKind] = Counter()
         self.read_count = 0
         self.write_count = 0
+        self._readable: dict[int, tuple[Peripheral, int]] = {}
+        """Word-aligned int addresses of readable registers seen so far (`read_word`)."""
+        self._writable: dict[int, tuple[Peripheral, int]] = {}
+        """Word-aligned int addresses of writable registers seen so far (`write_word`)."""
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.read is not Bus.read and cls.read_word is Bus.read_word:
+            cls.read_word = Bus._read_word_via_read  # type: ignore[method-assign]
+        if cls.write is not Bus.write and cls.write_word is Bus.write_word:
+            cls.write_word = Bus._write_word_via_write  # type: ignore[method-assign]
 
     # -- map -------------------------------------------------------------------------
 
@@ -101,6 +119,8 @@ class Bus:
         if any(p is peripheral for p in self._windows.values()):
             raise ValueError(f"{peripheral.name} is already mapped")
         self._windows[base] = peripheral
+        self._readable.clear()
+        self._writable.clear()
 
     def mapped(self) -> tuple[tuple[int, Peripheral], ...]:
         """(base, peripheral) pairs in address order."""
@@ -158,6 +178,45 @@ class Bus:
             return self._refuse(BusOp.WRITE, address, word, BusErrorKind.WRITE_TO_READ_ONLY)
         found.peripheral.write(found.register.offset, word)
         return BusResult(word)
+
+    def read_word(self, address: int) -> int | None:
+        """As `read`: the word read, or None when the access is refused (counted, logged)."""
+        if type(address) is int:
+            known = self._readable.get(address)
+            if known is not None:
+                self.read_count += 1
+                peripheral, offset = known
+                return peripheral.read(offset)
+        result = self.read(address)
+        if result.error is not None:
+            return None
+        found = self.decode(address)
+        if type(address) is int and found is not None:
+            self._readable[address] = (found.peripheral, found.register.offset)
+        return result.value
+
+    def write_word(self, address: int, value: int) -> bool:
+        """As `write`: whether the write went through (False: refused, counted, logged)."""
+        if type(address) is int and type(value) is int and 0 <= value <= WORD_MASK:
+            known = self._writable.get(address)
+            if known is not None:
+                self.write_count += 1
+                peripheral, offset = known
+                peripheral.write(offset, value)
+                return True
+        if self.write(address, value).error is not None:
+            return False
+        found = self.decode(address)
+        if type(address) is int and found is not None:
+            self._writable[address] = (found.peripheral, found.register.offset)
+        return True
+
+    def _read_word_via_read(self, address: int) -> int | None:
+        result = self.read(address)
+        return None if result.error is not None else result.value
+
+    def _write_word_via_write(self, address: int, value: int) -> bool:
+        return self.write(address, value).error is None
 
     # -- introspection ---------------------------------------------------------------
 
