@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit, vectorize
+from robot_firmware.control.kernels import njit, vectorize
 
 TWO_PI = 2.0 * math.pi
 

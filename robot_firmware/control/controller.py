@@ -42,7 +42,6 @@ from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 
@@ -61,6 +60,7 @@ from robot_firmware.control.estimation import (
 )
 from robot_firmware.control.formation import slot_reference
 from robot_firmware.control.fuzzy import FuzzyRuleBase, infer_one
+from robot_firmware.control.kernels import njit, prange
 from robot_firmware.control.pid import PidState, axis_error, axis_error_rate, pid_law
 from robot_firmware.control.rows import as_rows, from_rows, rows_of
 

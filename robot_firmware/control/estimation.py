@@ -16,10 +16,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from robot_firmware.control.angles import wrap_angle
+from robot_firmware.control.kernels import njit
 from robot_firmware.control.kinematics import body_rate
 from robot_firmware.control.rows import as_rows, from_rows
 

@@ -22,10 +22,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from robot_firmware.control.angles import wrap_angle
+from robot_firmware.control.kernels import njit
 from robot_firmware.control.rows import as_rows, from_rows
 
 FloatArray = NDArray[np.float64]

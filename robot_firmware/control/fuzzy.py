@@ -29,9 +29,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from robot_firmware.control.kernels import njit
 from robot_firmware.control.rows import as_rows, from_rows
 
 FloatArray = NDArray[np.float64]

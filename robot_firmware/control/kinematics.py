@@ -20,9 +20,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from robot_firmware.control.kernels import njit
 from robot_firmware.control.rows import as_rows, from_rows
 
 WHEEL_ANGLE_OFFSET_RAD = math.pi / 4.0

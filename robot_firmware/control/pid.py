@@ -25,10 +25,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from robot_firmware.control.angles import wrap_angle
+from robot_firmware.control.kernels import njit
 from robot_firmware.control.kinematics import rim_speeds
 from robot_firmware.control.rows import as_rows, from_rows
 

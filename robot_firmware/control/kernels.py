@@ -1,0 +1,218 @@
+"""How the control kernels run: numba's JIT, or the module compiled ahead of time from them.
+
+Every kernel of this package is a Python function decorated with `njit` (and `prange`,
+`vectorize`) from here, so the math is written once.  Two ways to run it, chosen once per
+process by the environment variable SWARM_KERNELS before the first control module is imported:
+
+    jit   (default) numba compiles the kernels on first use and caches them on disk; the batch
+          simulator and the world take this way (`prange` over large batches, and the world's
+          own numba kernels call the control kernels).
+    aot   a robot process: the kernels come from an extension module that
+          `robot_firmware.control.aot` compiled ahead of time (numba.pycc) from the same
+          functions, so the process never imports numba or llvmlite (about 150 MiB less).
+          A function the module does not export runs as plain Python (numpy), correct but slow:
+          only the functions a robot calls in its tick are exported.
+
+The module is named after a hash of this package's sources (every .py file here) and the
+versions of Python, NumPy and numba (`source_hash`), so an edited kernel is never run from an
+old build: with no module for the current hash, `aot` falls back to the JIT with a one-line
+note on stderr (rebuild with `python -m robot_firmware.control.aot`; scripts/ensure-env.sh and
+the Dockerfile do).  The compiled functions check no types themselves (a wrong dtype would read
+past an array), so every call goes through `AotKernel`, which compares each argument with the
+signature the module was built for and runs the Python function when one differs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.machinery
+import importlib.metadata
+import importlib.util
+import json
+import os
+import platform
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+KERNELS_ENV = "SWARM_KERNELS"
+AOT_DIR_ENV = "SWARM_AOT_DIR"
+"""Where the ahead-of-time module lives (default: this package's __pycache__)."""
+MODES = ("jit", "aot")
+PACKAGE_DIR = Path(__file__).resolve().parent
+MODULE_PREFIX = "control_kernels_"
+
+ArgSpec = Any
+"""What `AotKernel` checks an argument against (JSON): ["a", dtype, ndim] for a C-contiguous
+array, ["t", [specs]] for a tuple, ["f"], ["i"], ["b"] for a float, int or bool."""
+
+
+def source_hash() -> str:
+    """Hash of the kernels' sources (every .py file of this package) and the tool versions."""
+    digest = hashlib.sha256()
+    for path in sorted(PACKAGE_DIR.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    for name in ("numpy", "numba", "llvmlite"):
+        digest.update(f"{name}={_version(name)}".encode())
+    digest.update(f"{sys.version}|{platform.machine()}".encode())
+    return digest.hexdigest()[:20]
+
+
+def _version(distribution: str) -> str:
+    try:
+        return importlib.metadata.version(distribution)
+    except importlib.metadata.PackageNotFoundError:
+        return "none"
+
+
+def aot_dir() -> Path:
+    return Path(os.environ.get(AOT_DIR_ENV) or PACKAGE_DIR / "__pycache__")
+
+
+def module_name(hash_: str) -> str:
+    return MODULE_PREFIX + hash_
+
+
+def module_paths(hash_: str, directory: Path | None = None) -> tuple[Path, Path]:
+    """(extension module, JSON of its exports) for a source hash."""
+    directory = aot_dir() if directory is None else directory
+    suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
+    name = module_name(hash_)
+    return directory / f"{name}{suffix}", directory / f"{name}.json"
+
+
+class AotKernel:
+    """A function of the ahead-of-time module, called only with the types it was built for."""
+
+    def __init__(
+        self, compiled: Callable[..., Any], spec: list[ArgSpec], py_func: Callable[..., Any]
+    ):
+        self.compiled = compiled
+        self.spec = spec
+        self.py_func = py_func
+        self.__doc__ = py_func.__doc__
+        self.__name__ = py_func.__name__
+        self.mismatches = 0
+        """Calls that ran the Python function because an argument's type differed."""
+
+    def __call__(self, *args: Any) -> Any:
+        if len(args) == len(self.spec) and all(map(_matches, args, self.spec)):
+            return self.compiled(*args)
+        self.mismatches += 1
+        return self.py_func(*args)
+
+
+def _matches(value: Any, spec: ArgSpec) -> bool:
+    kind = spec[0]
+    if kind == "a":
+        return (
+            type(value) is np.ndarray
+            and value.dtype.str == spec[1]
+            and value.ndim == spec[2]
+            and value.flags.c_contiguous
+        )
+    if kind == "t":
+        return (
+            isinstance(value, tuple)
+            and len(value) == len(spec[1])
+            and all(map(_matches, value, spec[1]))
+        )
+    if kind == "b":
+        return isinstance(value, (bool, np.bool_))
+    if kind == "i":
+        return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return isinstance(value, (float, int, np.floating, np.integer))
+
+
+def _load_aot(hash_: str) -> tuple[Any, dict[str, Any]] | None:
+    """The ahead-of-time module for `hash_` and its exports, or None when it is not there."""
+    module_path, exports_path = module_paths(hash_)
+    if not module_path.is_file() or not exports_path.is_file():
+        return None
+    exports = json.loads(exports_path.read_text())
+    if exports.get("source_hash") != hash_:
+        return None
+    spec = importlib.util.spec_from_file_location(module_name(hash_), module_path)
+    if spec is None or spec.loader is None:
+        return None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module, exports["functions"]
+
+
+def _choose_mode() -> tuple[str, Any, dict[str, Any]]:
+    wanted = os.environ.get(KERNELS_ENV, "jit") or "jit"
+    if wanted not in MODES:
+        sys.stderr.write(f"{KERNELS_ENV}={wanted!r} is not one of {MODES}; using jit\n")
+        return "jit", None, {}
+    if wanted == "jit":
+        return "jit", None, {}
+    hash_ = source_hash()
+    loaded = _load_aot(hash_)
+    if loaded is None:
+        sys.stderr.write(
+            f"control kernels: no ahead-of-time module for these sources ({hash_}) in "
+            f"{aot_dir()}; using numba's JIT (build: python -m robot_firmware.control.aot)\n"
+        )
+        return "jit", None, {}
+    module, functions = loaded
+    return "aot", module, functions
+
+
+MODE, _AOT_MODULE, _AOT_FUNCTIONS = _choose_mode()
+"""The way this process runs the kernels ("aot" only when the module was found)."""
+
+JIT_KERNELS: list[tuple[str, bool, Any]] = []
+"""(module.qualname, parallel, dispatcher) of every kernel decorated here in jit mode."""
+
+
+def kernel_key(function: Callable[..., Any]) -> str:
+    return f"{function.__module__}.{function.__qualname__}"
+
+
+if MODE == "jit":
+    import numba
+
+    prange: Any = numba.prange
+    vectorize: Any = numba.vectorize
+
+    def njit(*args: Any, **options: Any) -> Any:
+        """numba.njit, recording the kernel for the ahead-of-time build."""
+
+        def decorate(function: Callable[..., Any]) -> Any:
+            dispatcher = numba.njit(**options)(function)
+            JIT_KERNELS.append((kernel_key(function), bool(options.get("parallel")), dispatcher))
+            return dispatcher
+
+        if args and callable(args[0]):
+            return decorate(args[0])
+        return decorate
+
+else:
+    prange = range
+
+    def njit(*args: Any, **options: Any) -> Any:
+        """The function from the ahead-of-time module (as `AotKernel`), else plain Python."""
+
+        def decorate(function: Callable[..., Any]) -> Any:
+            export = _AOT_FUNCTIONS.get(kernel_key(function))
+            if export is None:
+                return function
+            return AotKernel(getattr(_AOT_MODULE, export["symbol"]), export["spec"], function)
+
+        if args and callable(args[0]):
+            return decorate(args[0])
+        return decorate
+
+    def vectorize(*args: Any, **options: Any) -> Any:
+        """An element-wise numpy form of a scalar function (float64 in and out)."""
+        del args, options
+
+        def decorate(function: Callable[..., Any]) -> Any:
+            return np.vectorize(function, otypes=[np.float64])
+
+        return decorate
