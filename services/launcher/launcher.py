@@ -56,6 +56,7 @@ from urllib.parse import quote
 
 from pydantic import ValidationError
 
+from robot_firmware.control.kernels import KERNELS_ENV
 from robot_firmware.net.admin import AdminQueue, Handler
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import (
@@ -327,6 +328,12 @@ class Launcher:
         env.update(self.plan.extra_env)
         env.pop("SWARM_KEY", None)  # secrets never travel in a child's environment
         env[CREDENTIALS_FILE_ENV] = str(self.credential_files[name])
+        if name in self.plan.started_robots:
+            # Robots run the control kernels compiled ahead of time (no numba in the process);
+            # the world and the rest keep numba's JIT (robot_firmware/control/kernels.py).
+            env.setdefault(KERNELS_ENV, "aot")
+        else:
+            env[KERNELS_ENV] = "jit"  # the world's own kernels call the control kernels
         if self.tls is not None:
             env[TLS_ROOT_CA_ENV] = str(self.tls.ca_certificate.resolve())
         env["PYTHONUNBUFFERED"] = "1"
