@@ -18,7 +18,10 @@
 # byte-compiled (at build time), which keeps the image smaller and container starts fast.
 # The compiled control and body kernels (numba) are compiled at build time too, into
 # NUMBA_CACHE_DIR=/opt/numba-cache (readable and writable by any user), so that no container
-# pays the compile time (about 13 s) at its start.
+# pays the compile time (about 13 s) at its start.  The robots' kernels compiled ahead of time
+# (robot_firmware/control/aot.py: a robot process with SWARM_KERNELS=aot never imports numba)
+# go to SWARM_AOT_DIR=/opt/aot-kernels; that build needs a C compiler, so where the base image
+# has none it is skipped with a note and robots run numba's JIT from the cache.
 
 ARG BASE_IMAGE=python:3.11-slim
 FROM ${BASE_IMAGE}
@@ -32,7 +35,8 @@ ENV PATH=/opt/venv/bin:$PATH \
     PIP_ROOT_USER_ACTION=ignore \
     MPLBACKEND=Agg \
     MPLCONFIGDIR=/tmp/matplotlib \
-    NUMBA_CACHE_DIR=/opt/numba-cache
+    NUMBA_CACHE_DIR=/opt/numba-cache \
+    SWARM_AOT_DIR=/opt/aot-kernels
 
 # The runtime dependencies of pyproject.toml (and setuptools, the build backend of the editable
 # install below), in their own layer so that it survives edits of the source.
@@ -80,6 +84,11 @@ from swarm_config.scenario import load_scenario; \
 scenario = load_scenario(Path("configs/scenarios/paper.yaml")); \
 [run_batch(scenario, batch_size=b, duration_s=0.1) for b in (1, 30)]; \
 print("compiled the control and body kernels into the numba cache")'; \
+    if command -v cc > /dev/null; then \
+        SWARM_KERNELS=jit python -m robot_firmware.control.aot; \
+    else \
+        echo "no C compiler: robots will run the control kernels through numba's JIT"; \
+    fi; \
     chmod -R a+rwX /opt/numba-cache; \
     mkdir -p /runs
 

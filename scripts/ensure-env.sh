@@ -3,13 +3,26 @@
 # The environment is rebuilt only when pyproject.toml changes (a stamp file records its hash).
 # It prints one line while it installs; pip's output is kept in .venv/ensure-env.log and
 # printed only when the installation fails.
+# Then the robot processes' control kernels are compiled ahead of time (numba.pycc, about a
+# minute) when no module for the current control sources is there (robot_firmware/control/aot.py);
+# if that fails the robots run numba's JIT instead, so it only warns.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
 python_bin="${PYTHON:-python3}"
 stamp="$venv/.pyproject.sha256"
 want="$(sha256sum "$root/pyproject.toml" | cut -d' ' -f1)"
+ensure_aot_kernels() {
+    if SWARM_KERNELS=jit "$venv/bin/python" -m robot_firmware.control.aot --check > /dev/null; then
+        return 0
+    fi
+    echo "compiling the robots' control kernels ahead of time (after a kernel edit; about a minute)..." >&2
+    if ! SWARM_KERNELS=jit "$venv/bin/python" -m robot_firmware.control.aot > "$venv/aot-kernels.log" 2>&1; then
+        echo "warning: the ahead-of-time build failed (robots will use numba's JIT); see $venv/aot-kernels.log" >&2
+    fi
+}
 if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+    ensure_aot_kernels
     exit 0
 fi
 if ! "$python_bin" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)'; then
@@ -28,3 +41,4 @@ if ! {
     exit 1
 fi
 echo "$want" > "$stamp"
+ensure_aot_kernels
