@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_firmware.net.wire import FixSample, SenseMessage
+from robot_firmware.net.wire import SenseMessage, SensePins
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario
 from world.checkpoint import CheckpointError, decode_array, encode_array
@@ -82,14 +82,10 @@ class RadioCounters:
         return float(np.percentile(np.asarray(self.latencies_ns), q)) / 1e6
 
 
-def echo_times_from_gaps(gaps_m: FloatArray) -> list[tuple[float | None, ...]]:
-    """Round-trip echo time per robot and transducer for gaps (n, beams); None = no echo."""
+def echo_times_from_gaps(gaps_m: FloatArray) -> FloatArray:
+    """Round-trip echo time per robot and transducer for gaps (n, beams); NaN = no echo."""
     times_s = 2.0 * gaps_m / SPEED_OF_SOUND_MPS
-    heard = np.isfinite(times_s)
-    return [
-        tuple(float(t) if h else None for t, h in zip(row, heard_row, strict=True))
-        for row, heard_row in zip(times_s, heard, strict=True)
-    ]
+    return np.where(np.isfinite(times_s), times_s, np.nan)
 
 
 class WorldEngine:
@@ -155,7 +151,12 @@ class WorldEngine:
         self.params = replace(self.params, link_table=self.network.link_table(self.link))
 
     def sense(self) -> list[SenseMessage]:
-        """What every robot's pins see now; fixes and sonar refresh at their own rates."""
+        """What every robot's pins see now, one message per robot (`sense_pins`)."""
+        return self.sense_pins().messages()
+
+    def sense_pins(self) -> SensePins:
+        """What every robot's pins see now, as arrays; fixes and sonar refresh at their own
+        rates."""
         sonar_due = self.t_ns >= self._next_sonar_ns
         if sonar_due:
             self._next_sonar_ns += self.sonar_period_ns
@@ -165,30 +166,27 @@ class WorldEngine:
         seen = sense_world(self.state, self.params, self.noise, fix_due, sonar_due)
         if seen.sonar_gap_m is not None:
             self._sonar_echo_times_s = echo_times_from_gaps(seen.sonar_gap_m)
-        fixes: list[FixSample | None] = [None] * self.robot_count
-        if seen.fix_pose is not None:
-            fixes = [
-                FixSample(float(p[0]), float(p[1]), float(p[2]), self.t_ns, valid=not bool(cut))
-                for p, cut in zip(seen.fix_pose, self.fixes_cut, strict=True)
-            ]
-        return [
-            SenseMessage(
-                encoder_counts=tuple(int(c) for c in counts),
-                sonar_echo_times_s=echo,
-                fix=fix,
-                t_ns=self.t_ns,
-            )
-            for counts, echo, fix in zip(
-                seen.encoder_counts, self._sonar_echo_times_s, fixes, strict=True
-            )
-        ]
+        return SensePins(
+            encoder_counts=np.asarray(seen.encoder_counts, dtype=np.int64),
+            echo_times_s=self._sonar_echo_times_s,
+            fix_pose=None if seen.fix_pose is None else np.asarray(seen.fix_pose, np.float64),
+            fix_valid=~self.fixes_cut,
+            t_ns=self.t_ns,
+        )
 
-    def advance(self, duty: FloatArray, dt_ns: int) -> None:
-        """Step the bodies by dt_ns with the given duties (N, 4); record metrics on schedule."""
+    def record_metrics(self) -> None:
+        """Take the metrics sample due at the current time, if one is due and not yet taken.
+
+        `advance` takes it itself before it steps; a caller may take it earlier, while the
+        bodies are where they are now (the lockstep world does so while the robots compute)."""
         if self.t_ns >= self._next_metrics_ns:
             self._next_metrics_ns += self.metrics_period_ns
             reference, _ = self.trajectory.evaluate(self.t_s)
             self.metrics.update(self.t_s, self.bodies.pose, reference, self.state.contacts)
+
+    def advance(self, duty: FloatArray, dt_ns: int) -> None:
+        """Step the bodies by dt_ns with the given duties (N, 4); record metrics on schedule."""
+        self.record_metrics()
         inputs = WorldInputs(duty=np.asarray(duty, dtype=np.float64), dt_s=dt_ns / NS_PER_S)
         self.state, _ = step_world(self.state, inputs, self.params, self.noise)
         self.t_ns += dt_ns
@@ -252,10 +250,7 @@ class WorldEngine:
         it in a fresh engine of the same scenario continues this run bit for bit."""
         bodies = self.state.bodies
         contacts = self.state.contacts
-        echoes = np.array(
-            [[np.nan if t is None else t for t in row] for row in self._sonar_echo_times_s],
-            dtype=np.float64,
-        )
+        echoes = np.array(self._sonar_echo_times_s, dtype=np.float64)
         metrics = {
             name: encode_array(value) if isinstance(value, np.ndarray) else value
             for name, value in self.metrics.export_state().items()
@@ -381,9 +376,7 @@ class WorldEngine:
             "_next_fix_ns": int(state["next_fix_ns"]),
             "_next_sonar_ns": int(state["next_sonar_ns"]),
             "_next_metrics_ns": int(state["next_metrics_ns"]),
-            "_sonar_echo_times_s": [
-                tuple(None if np.isnan(t) else float(t) for t in row) for row in echoes
-            ],
+            "_sonar_echo_times_s": np.asarray(echoes, dtype=np.float64),
             "fixes_cut": decode_array(state["fixes_cut"]).astype(bool),
             "params": replace(self.params, link=link, link_table=network.link_table(link)),
             "network": network,

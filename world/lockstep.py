@@ -24,15 +24,27 @@ or frames it announced are still to come.  The tick completes when no live seat 
 
 **Pacer.**  With `max_speed` set, holds ticks back so simulated time runs at most `max_speed`
 times the wall clock; a run that falls behind carries on at the same pace from where it is.
+
+**Profile.**  Where a lockstep tick's wall time goes, phase by phase (`TICK_PHASES`), and how
+long each robot took from the tick's sense message going out to its act message arriving (two
+router hops and the robot's own receive, tick and act): the world's `admin/world/status`
+reports it and bench/swarm_runtime.py prints it.  It only observes: nothing in it decides
+anything, so a run's results do not depend on it.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 NS_PER_S = 1_000_000_000
+TICK_PHASES = ("boundary", "sense", "metrics", "wait_acts", "gather", "step", "after")
+"""A lockstep tick in order: the tick boundary (queued input, telemetry due, faults); radio
+frames due, sense and clock messages encoded and published; the metrics sample of the bodies as
+they are (while the robots compute); waiting until every live robot has answered (acts and
+announced frames); the last input drained and frames handed to the radio medium; the physics
+step; truth, checkpoint and summary."""
 
 
 @dataclass
@@ -86,6 +98,20 @@ class LockstepBarrier:
 
     def complete(self) -> bool:
         return not self.waiting()
+
+    def owed(self) -> tuple[int, int]:
+        """What the current tick still waits for: acts of live robots, and the frames that
+        robots which have answered announced and that have not come (the world wakes when as
+        many have arrived, not at every message)."""
+        acts = frames = 0
+        for seat in self.seats.values():
+            if not seat.owes(self.tick):
+                continue
+            if seat.last_act_tick < self.tick:
+                acts += 1
+            else:
+                frames += max(seat.frames_owed, 0)
+        return acts, frames
 
     def advance(self) -> int:
         """The current tick is done (whether or not it was complete): on to the next."""
@@ -149,3 +175,44 @@ class LockstepPacer:
             self._wait(due_s - now_s)
         else:  # behind (or the first tick): start the pace from here, never catch up faster
             self._start_s = now_s - wall_offset_s
+
+
+@dataclass
+class LockstepProfile:
+    """Wall time per lockstep phase and per robot's answer, summed since time started."""
+
+    ticks: int = 0
+    phase_ns: dict[str, int] = field(default_factory=lambda: dict.fromkeys(TICK_PHASES, 0))
+    answer_ns: dict[str, list[int]] = field(default_factory=dict)
+    """Per robot: sense message out -> its act in, the most recent `ANSWERS_KEPT`."""
+
+    ANSWERS_KEPT = 2000
+
+    def tick_done(self, phase_ends_ns: Sequence[int]) -> None:
+        """One tick: its start, then the end of each of `TICK_PHASES` (monotonic ns)."""
+        if len(phase_ends_ns) != len(TICK_PHASES) + 1:
+            raise ValueError(f"{len(phase_ends_ns)} instants for {len(TICK_PHASES)} phases")
+        self.ticks += 1
+        for phase, start, end in zip(
+            TICK_PHASES, phase_ends_ns[:-1], phase_ends_ns[1:], strict=True
+        ):
+            self.phase_ns[phase] += end - start
+
+    def answered(self, robot: str, took_ns: int) -> None:
+        kept = self.answer_ns.setdefault(robot, [])
+        kept.append(took_ns)
+        if len(kept) > 2 * self.ANSWERS_KEPT:
+            del kept[: -self.ANSWERS_KEPT]
+
+    def phase_ms_per_tick(self) -> dict[str, float]:
+        """Mean wall milliseconds per tick in each phase (0 before the first tick)."""
+        ticks = max(self.ticks, 1)
+        return {phase: round(ns / ticks / 1e6, 4) for phase, ns in self.phase_ns.items()}
+
+    def answer_p50_ms(self) -> dict[str, float]:
+        """Per robot: median of sense out -> act in over the recent ticks, in ms."""
+        out = {}
+        for robot, kept in self.answer_ns.items():
+            recent = sorted(kept[-self.ANSWERS_KEPT :])
+            out[robot] = round(recent[len(recent) // 2] / 1e6, 4)
+        return out

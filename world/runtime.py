@@ -95,6 +95,7 @@ from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
     AdminError,
     AdminRefusal,
+    LockstepProfileReport,
     LockstepSeat,
     LoopTimingReport,
     NetProfileRequest,
@@ -111,11 +112,11 @@ from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endp
 from robot_firmware.net.wire import (
     ActMessage,
     ClockMessage,
-    SenseMessage,
+    SensePins,
     WireCounters,
     WireDropReason,
     encode_clock,
-    encode_sense,
+    encode_sense_rows,
     parse_act,
 )
 from swarm_config.credentials import (
@@ -144,7 +145,7 @@ from world.faults import (
     NetworkFault,
     TelemetryGate,
 )
-from world.lockstep import LockstepBarrier, LockstepPacer
+from world.lockstep import LockstepBarrier, LockstepPacer, LockstepProfile
 from world.metrics import FormationLayout, reference_points, sample_errors
 from world.realtime_guard import RealTimeGuard
 from world.summary import build_summary, summarise_events, write_json_atomically
@@ -276,6 +277,8 @@ class WorldProcess:
         self.act_seen_sim_ns = np.full(len(self.names), -(10**18), dtype=np.int64)
         """Simulation time at which each robot's newest act message was applied."""
         self.barrier = LockstepBarrier(self.names)
+        self.lockstep_profile = LockstepProfile()
+        """Lockstep: where the ticks' wall time goes (observed only, world/lockstep.py)."""
         self.guard = RealTimeGuard(
             self.names,
             self.period_ns,
@@ -283,8 +286,10 @@ class WorldProcess:
             enabled=config.starvation_guard and not config.lockstep,
         )
         """Real time: holds simulated time back for starved robots (world/realtime_guard.py)."""
-        self._sense_sent: dict[str, SenseMessage] = {}
+        self._sense_sent: tuple[SensePins, int] | None = None
         self._sense_sent_mono_ns = 0
+        self._sense_out_mono_ns = 0
+        """When the first of the newest sense messages went out."""
         """The newest sense messages and when they went out (repeated while time is held)."""
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
@@ -294,6 +299,12 @@ class WorldProcess:
         self._fault_admin = AdminQueue()
         """Queries of the `fault` verb: served only at a tick boundary."""
         self._wake = threading.Event()
+        self._acts_wake_at = 1
+        self._frames_wake_at = 1
+        """The callbacks wake the main loop once this many acts (frames) are queued: in
+        lockstep, what the tick still waits for (`_await_answers`), else every one."""
+        self._telemetry_wanted = False
+        """Lockstep: a tick boundary waits for telemetry (its callback wakes the loop)."""
         self.stop = threading.Event()
         self.act_counters = WireCounters()
         """Act messages applied, and refused per `WireDropReason`."""
@@ -325,7 +336,10 @@ class WorldProcess:
         self._time_started = False
         """Joins and leaves before time starts are the swarm booting, not events."""
         self._checkpoint_event_count = 0
-        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._sense_publishers: list[zenoh.Publisher] = []
+        """`wire/<robot>/sense` per robot index."""
+        self._rx_publishers: list[zenoh.Publisher] = []
+        """`radio/rx/<robot>` per robot index."""
         self._clock_started_mono_s: float | None = None
         self.rule_count_total = int(np.asarray(load_rule_base(scenario).rule_count)) * len(
             self.names
@@ -433,11 +447,13 @@ class WorldProcess:
     def _on_act(self, sample: zenoh.Sample) -> None:
         robot = SwarmKeys.chunk(str(sample.key_expr), 3)
         self._acts.put((robot, sample.payload.to_bytes(), time.monotonic_ns()))
-        self._wake.set()
+        if self._acts.qsize() >= self._acts_wake_at:
+            self._wake.set()
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self._frames.put((SwarmKeys.last_chunk(str(sample.key_expr)), sample.payload.to_bytes()))
-        self._wake.set()
+        if self._frames.qsize() >= self._frames_wake_at:
+            self._wake.set()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         name = SwarmKeys.last_chunk(str(sample.key_expr))
@@ -450,8 +466,8 @@ class WorldProcess:
             self.malformed_telemetry += 1
         else:
             self._telemetry.put(telemetry)
-            if self.config.lockstep:
-                self._wake.set()  # a tick boundary may be waiting for it
+            if self._telemetry_wanted:
+                self._wake.set()  # a lockstep tick boundary is waiting for it
 
     def _on_query(self, query: zenoh.Query) -> None:
         """Faults wait for the next tick boundary; every other verb is answered between steps."""
@@ -571,6 +587,15 @@ class WorldProcess:
         """Lockstep, at a tick boundary: wait for the telemetry due by now (each robot's own
         period tells when), then apply what is due (module docstring)."""
         deadline = time.monotonic() + TELEMETRY_WAIT_S
+        self._telemetry_wanted = True
+        try:
+            self._await_telemetry(deadline)
+        finally:
+            self._telemetry_wanted = False
+        self._apply_telemetry(self.engine.t_ns)
+
+    def _await_telemetry(self, deadline: float) -> None:
+        """Until the telemetry due by now has come, or `deadline` (monotonic s) has passed."""
         while (missing := self.telemetry_gate.waiting_for(self.engine.t_ns)) and not (
             self.stop.is_set()
         ):
@@ -585,7 +610,6 @@ class WorldProcess:
             self._wake.wait(0.005)
             self._wake.clear()
             self._drain()
-        self._apply_telemetry(self.engine.t_ns)
 
     def _follow_leader(self) -> None:
         """Take the sample's leader from the telemetry (module docstring)."""
@@ -613,6 +637,8 @@ class WorldProcess:
         self._held_frames.clear()
 
     def _apply_act(self, i: int, act: ActMessage, arrival_mono_ns: int) -> None:
+        if self.config.lockstep and act.tick == self.tick:
+            self.lockstep_profile.answered(self.names[i], arrival_mono_ns - self._sense_out_mono_ns)
         self.barrier.act(self.names[i], act.tick, act.radio_frames)
         self.guard.answer(self.names[i], act.tick)
         self.duty[i] = np.where(act.enabled, act.duty, 0.0)
@@ -620,31 +646,38 @@ class WorldProcess:
         self.act_seen_sim_ns[i] = self.engine.t_ns
 
     def _publish_sense(self, lockstep: bool, delivered: list[int]) -> None:
-        for i, (name, message) in enumerate(zip(self.names, self.engine.sense(), strict=True)):
-            message = replace(
-                message,
-                tick=self.tick,
-                t_ns=self.engine.t_ns,
-                lockstep=lockstep,
-                radio_frames=delivered[i],
-                epoch=self.epoch,
-            )
-            self._publishers[name].put(encode_sense(message))
-            self._sense_sent[name] = message
+        """Every robot's sense message of this tick, encoded at once (wire.py
+        `encode_sense_rows`), each on its robot's own key."""
+        self._sense_out_mono_ns = time.monotonic_ns()
+        pins = self.engine.sense_pins()
+        payloads = encode_sense_rows(pins, self.tick, lockstep, delivered, self.epoch)
+        for publisher, payload in zip(self._sense_publishers, payloads, strict=True):
+            publisher.put(payload)
+        self._sense_sent = (pins, self.tick)
         self._sense_sent_mono_ns = time.monotonic_ns()
 
     def _repeat_sense(self) -> None:
         """Real time, while the guard holds the time: the newest sense messages again (no new
         fix, no frames announced), so the robots know the world is there and wait
         (robot_firmware/tick_scheduler.py)."""
-        for name, message in self._sense_sent.items():
-            self._publishers[name].put(encode_sense(replace(message, fix=None, radio_frames=0)))
+        if self._sense_sent is None:
+            return
+        pins, tick = self._sense_sent
+        again = replace(pins, fix_pose=None)
+        no_frames = [0] * len(self.names)
+        for publisher, payload in zip(
+            self._sense_publishers,
+            encode_sense_rows(again, tick, False, no_frames, self.epoch),
+            strict=True,
+        ):
+            publisher.put(payload)
         self._sense_sent_mono_ns = time.monotonic_ns()
 
-    def _deliver_radio(self, session: zenoh.Session) -> list[int]:
+    def _deliver_radio(self) -> list[int]:
+        """Put every frame due by the engine's time on its receiver's `radio/rx` key."""
         delivered = [0] * len(self.names)
         for receiver, _sender, payload in self.engine.due_frames():
-            session.put(self.keys.radio_rx(self.names[receiver]), payload)
+            self._rx_publishers[receiver].put(payload)
             delivered[receiver] += 1
         return delivered
 
@@ -674,7 +707,8 @@ class WorldProcess:
                 keys.alive_all("robot"), self._on_alive, history=True
             )
             session.declare_queryable(keys.admin("world", "*"), self._on_query)
-            self._publishers = {n: session.declare_publisher(keys.sense(n)) for n in self.names}
+            self._sense_publishers = [session.declare_publisher(keys.sense(n)) for n in self.names]
+            self._rx_publishers = [session.declare_publisher(keys.radio_rx(n)) for n in self.names]
             self._session = session
             self._events_pub = session.declare_publisher(keys.events())
             for event in self._unpublished:
@@ -731,31 +765,61 @@ class WorldProcess:
         self._clock_started_sim_ns = self.engine.t_ns
         next_summary = time.monotonic() + self.config.summary_every_s
         pacer = LockstepPacer(self.config.max_speed, self._wait_serving_queries)
+        clock = time.monotonic_ns
         while not self.stop.is_set() and (end is None or self.tick < end):
             pacer.before_tick(self.engine.t_ns)
+            started = clock()
             self._drain()
             self._tick_boundary()
-            self._publish_sense(lockstep=True, delivered=self._deliver_radio(session))
+            boundary_done = clock()
+            self._publish_sense(lockstep=True, delivered=self._deliver_radio())
             clock_pub.put(
                 encode_clock(
                     ClockMessage(self.tick, self.engine.t_ns, self.period_ns, True, self.epoch)
                 )
             )
-            # A robot is done with this tick when its act has come, and the frames it
-            # announced in it too.
-            while not self.barrier.complete() and not self.stop.is_set():
-                self._wake.wait(0.05)
-                self._wake.clear()
-                self._drain()
+            sense_done = clock()
+            # The sample of the bodies as they are now, taken while the robots compute (the
+            # acts and frames that come meanwhile change no pose, contact or leader).
+            self.engine.record_metrics()
+            sampled = clock()
+            self._await_answers()
+            answered = clock()
             self._drain()
             self._transmit_held()
+            gathered = clock()
             self.engine.advance(np.where(self._dead()[:, None], 0.0, self.duty), self.period_ns)
+            stepped = clock()
             self.barrier.advance()
             self._publish_truth(truth_pub)
             self._checkpoint_if_due()
             if time.monotonic() >= next_summary:
                 next_summary += self.config.summary_every_s
                 self.write_summary()
+            self.lockstep_profile.tick_done(
+                (started, boundary_done, sense_done, sampled, answered, gathered, stepped, clock())
+            )
+
+    def _await_answers(self) -> None:
+        """Lockstep: until every live robot has answered the tick (its act has come, and the
+        frames it announced in it too).  The callbacks wake this loop only once as many acts,
+        then frames, are queued as the tick still waits for (a liveliness change wakes it at
+        once): one wake-up per tick instead of one per message."""
+        unbounded = 1 << 30
+        try:
+            while not self.barrier.complete() and not self.stop.is_set():
+                acts, frames = self.barrier.owed()
+                self._acts_wake_at = max(acts, 1)
+                self._frames_wake_at = max(frames, 1) if acts == 0 else unbounded
+                # Set, then look: an arrival the callback judged by the old count is seen here.
+                if self._acts.qsize() < self._acts_wake_at and (
+                    self._frames.qsize() < self._frames_wake_at
+                ):
+                    self._wake.wait(0.05)
+                self._wake.clear()
+                self._drain()
+        finally:
+            self._acts_wake_at = self._frames_wake_at = 1
 
     def _run_realtime(
         self, session: zenoh.Session, clock_pub: zenoh.Publisher, truth_pub: zenoh.Publisher
@@ -799,12 +863,16 @@ class WorldProcess:
                     self._wake.wait(max(wait_ns, 0) / NS_PER_S)
                     self._wake.clear()
                 self._drain()
+                # Frames due by the engine's time (all of them on an ideal link) leave before
+                # the physics catches up with the clock: a frame's hop through the world does
+                # not wait for a physics step.
+                self._deliver_radio()
                 mono = time.monotonic_ns()
                 now_sim = guard.sim_time_ns(mono)
                 if now_sim >= self.next_sense_ns:
                     advance_to(self.next_sense_ns)
                     self._tick_boundary()
-                    self._publish_sense(lockstep=False, delivered=self._deliver_radio(session))
+                    self._publish_sense(lockstep=False, delivered=self._deliver_radio())
                     clock_pub.put(
                         encode_clock(
                             ClockMessage(
@@ -819,7 +887,7 @@ class WorldProcess:
                     self._checkpoint_if_due()
                 else:
                     advance_to(now_sim)
-                    self._deliver_radio(session)
+                    self._deliver_radio()
                     if guard.holding and mono >= self._sense_sent_mono_ns + self.period_ns:
                         self._repeat_sense()
                 while guard.new_lapses:
@@ -1087,6 +1155,15 @@ class WorldProcess:
                 )
                 for name, seat in self.barrier.seats.items()
             },
+            lockstep_profile=(
+                LockstepProfileReport(
+                    ticks=self.lockstep_profile.ticks,
+                    phase_ms_per_tick=self.lockstep_profile.phase_ms_per_tick(),
+                    answer_p50_ms=self.lockstep_profile.answer_p50_ms(),
+                )
+                if self.config.lockstep
+                else None
+            ),
         )
 
     def _net_request(self, payload: bytes) -> NetReply | AdminError:

@@ -329,6 +329,16 @@ class RunMetrics(Message):
 ClockMode = Literal["lockstep", "real_time"]
 
 
+class LockstepProfileReport(Message):
+    """Where a lockstep tick's wall time goes (world/lockstep.py `LockstepProfile`)."""
+
+    ticks: int
+    phase_ms_per_tick: dict[str, float]
+    """Mean wall milliseconds per tick in each phase, in the order of `TICK_PHASES`."""
+    answer_p50_ms: dict[str, float]
+    """Per robot: median wall time from the tick's sense message out to its act message in."""
+
+
 class WorldStatusReply(AdminOk):
     """`admin/world/status`."""
 
@@ -344,6 +354,8 @@ class WorldStatusReply(AdminOk):
     position_errors_m: dict[str, float]
     """Each robot's distance from its reference now (trajectory or slot, DESIGN.md §8)."""
     lockstep_owed: dict[str, LockstepSeat]
+    lockstep_profile: LockstepProfileReport | None = None
+    """Lockstep only: where the ticks' wall time went since time started."""
 
 
 class NetProfileRequest(Message):

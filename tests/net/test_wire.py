@@ -1,18 +1,22 @@
 import math
 import struct
+from dataclasses import replace
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.wire import (
+    MAX_ECHO_TIME_S,
     MAX_SONAR,
     WIRE_VERSION,
     ActMessage,
     ClockMessage,
     FixSample,
     SenseMessage,
+    SensePins,
     WireCounters,
     WireDropReason,
     decode_act,
@@ -21,6 +25,7 @@ from robot_firmware.net.wire import (
     encode_act,
     encode_clock,
     encode_sense,
+    encode_sense_rows,
     parse_act,
     parse_clock,
     parse_sense,
@@ -158,3 +163,43 @@ def test_counters_count_each_message_once_under_its_reason() -> None:
     assert counters.accepted == 1 and counters.dropped_total == 2
     assert counters.dropped_as_dict()["too_short"] == 2
     assert set(counters.dropped_as_dict()) == {reason.value for reason in WireDropReason}
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    robots=st.integers(1, 6),
+    n_sonar=st.integers(0, 5),
+    with_fix=st.booleans(),
+    lockstep=st.booleans(),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_sense_rows_are_byte_for_byte_the_single_messages(
+    robots: int, n_sonar: int, with_fix: bool, lockstep: bool, seed: int
+) -> None:
+    """The world's batch encoder gives each robot exactly what `encode_sense` gives it."""
+    rng = np.random.default_rng(seed)
+    echoes = rng.uniform(0.0, MAX_ECHO_TIME_S, (robots, n_sonar))
+    echoes[rng.random((robots, n_sonar)) < 0.4] = np.nan
+    pins = SensePins(
+        encoder_counts=rng.integers(-(2**40), 2**40, (robots, 4)),
+        echo_times_s=echoes,
+        fix_pose=rng.uniform(-50.0, 50.0, (robots, 3)) if with_fix else None,
+        fix_valid=rng.random(robots) < 0.5,
+        t_ns=int(rng.integers(0, 2**62)),
+    )
+    frames = [int(f) for f in rng.integers(0, 400, robots)]
+    tick, epoch = int(rng.integers(0, 2**62)), int(rng.integers(1, 2**32))
+    rows = encode_sense_rows(pins, tick, lockstep, frames, epoch)
+    singles = [encode_sense(m) for m in pins.messages(tick, lockstep, frames, epoch)]
+    assert rows == singles
+    for row, message in zip(rows, pins.messages(tick, lockstep, frames, epoch), strict=True):
+        parsed = parse_sense(row, n_sonar)
+        assert isinstance(parsed, SenseMessage)
+        # Echo times travel as f32: compare where there is an echo, and to f32 precision.
+        sent, got = message.sonar_echo_times_s, parsed.sonar_echo_times_s
+        assert [t is None for t in got] == [t is None for t in sent]
+        assert [t for t in got if t is not None] == pytest.approx(
+            [t for t in sent if t is not None], rel=1e-6
+        )
+        expected = replace(message, radio_frames=min(message.radio_frames, 255))
+        assert replace(parsed, sonar_echo_times_s=sent) == expected

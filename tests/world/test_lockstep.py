@@ -7,7 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from world.engine import NS_PER_S
-from world.lockstep import LockstepBarrier, LockstepPacer
+from world.lockstep import TICK_PHASES, LockstepBarrier, LockstepPacer, LockstepProfile
 from world.runtime import WorldConfig
 
 PERIOD_NS = 10_000_000
@@ -171,3 +171,42 @@ def test_max_speed_is_refused_for_a_real_time_world() -> None:
         WorldConfig(scenario="configs/scenarios/paper.yaml", lockstep=True, max_speed=0.0)
     paced = WorldConfig(scenario="configs/scenarios/paper.yaml", lockstep=True, max_speed=0.5)
     assert paced.max_speed == 0.5
+
+
+def test_owed_counts_missing_acts_then_frames_still_to_come() -> None:
+    """What the world's callbacks count down to before they wake its loop."""
+    barrier = started_barrier()
+    assert barrier.owed() == (3, 0)
+    barrier.act("robot1", 0, 1)  # answered, one frame announced
+    barrier.act("robot2", 0, 0)
+    assert barrier.owed() == (1, 1)
+    barrier.frame("robot3")  # robot3's frame came before its act
+    barrier.act("robot3", 0, 1)
+    assert barrier.owed() == (0, 1)
+    barrier.frame("robot1")
+    assert barrier.owed() == (0, 0) and barrier.complete()
+    barrier.leave("robot2")
+    barrier.advance()
+    assert barrier.owed() == (2, 0)  # a robot that left is not waited for
+
+
+def test_profile_sums_each_phase_and_keeps_recent_answers() -> None:
+    profile = LockstepProfile()
+    for start in (0, 1_000_000):
+        # each phase takes 0.1 ms more than the one before it
+        ends = [start]
+        for k in range(len(TICK_PHASES)):
+            ends.append(ends[-1] + (k + 1) * 100_000)
+        profile.tick_done(ends)
+    per_tick = profile.phase_ms_per_tick()
+    assert list(per_tick) == list(TICK_PHASES)
+    assert per_tick == {p: pytest.approx(0.1 * (k + 1)) for k, p in enumerate(TICK_PHASES)}
+    assert profile.ticks == 2
+    for took_ms in (3, 1, 2):
+        profile.answered("robot1", took_ms * 1_000_000)
+    assert profile.answer_p50_ms() == {"robot1": 2.0}
+    for _ in range(3 * LockstepProfile.ANSWERS_KEPT):
+        profile.answered("robot2", 5_000_000)
+    assert len(profile.answer_ns["robot2"]) <= 2 * LockstepProfile.ANSWERS_KEPT
+    with pytest.raises(ValueError, match="instants"):
+        profile.tick_done([0, 1])
