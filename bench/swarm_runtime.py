@@ -1,14 +1,21 @@
 """The networked swarm's runtime figures (not a test: prints tables).
 
-* lockstep speed-up: simulated seconds per wall second of `swarm up --lockstep`, 3 robots;
+* lockstep speed-up: simulated seconds per wall second of `swarm up --lockstep`, for the paper
+  scenario (3 robots) and a generated 24-robot wedge (`swarm scenario generate --robots 24
+  --formation wedge`), with where a tick's wall time goes: the world's phases (tick boundary;
+  sense and clock messages encoded and published; waiting for every robot's act and frames;
+  gathering them; the physics step; truth and checkpoints) and, per robot, the median time from
+  its sense message out to its act message in (two router hops plus the robot's receive, tick
+  and act; the raw ping-pong below is what the hops alone cost);
 * real time: control-loop deadline misses and period jitter per robot over 32 s runs;
 * CPU per process (router, world, each robot) during a real-time run, from /proc;
 * radio one-hop overhead with the ideal profile: a frame from `radio/tx/robot1` through the
-  world to `radio/rx/robot2`, next to a raw Zenoh ping-pong through the same router.
+  world to `radio/rx/robot2`, next to a raw Zenoh ping-pong through the same router, and their
+  ratio (goal: at most 3).
 
 Every figure is the median of several runs; machine and date are printed.
 
-    .venv/bin/python bench/swarm_runtime.py [--runs 3]
+    .venv/bin/python bench/swarm_runtime.py [--runs 3] [--only lockstep|realtime|hop]
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from proc_stats import CpuWindow
 from swarm_up import SwarmUp, free_port
 
 from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.messages import LockstepProfileReport
 from robot_firmware.net.session import open_client
 from services.router.access import router_config_document
 from swarm_config.credentials import (
@@ -41,15 +49,74 @@ from swarm_config.credentials import (
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def lockstep_speedup(window_s: float) -> float:
-    with tempfile.TemporaryDirectory() as out, SwarmUp(Path(out), "--lockstep") as up:
-        first = up.wait_ticking()
+WEDGE_ROBOTS = 24
+
+
+def wedge_scenario(directory: Path, robots: int) -> Path:
+    """`swarm scenario generate --robots N --formation wedge` into `directory`."""
+    path = directory / f"wedge-{robots}.yaml"
+    subprocess.run(
+        [sys.executable, "-m", "services.cli.main", "scenario", "generate", "--robots",
+         str(robots), "--formation", "wedge", "--out", str(path)],
+        cwd=ROOT, check=True, stdout=subprocess.DEVNULL,
+    )  # fmt: skip
+    return path
+
+
+def lockstep_speedup(
+    window_s: float, scenario: Path | None = None
+) -> tuple[float, LockstepProfileReport | None]:
+    """Simulated seconds per wall second over `window_s` of a running lockstep swarm, and the
+    world's profile of its ticks (since time started)."""
+    args = ("--lockstep",) if scenario is None else ("--lockstep", "--scenario", str(scenario))
+    with tempfile.TemporaryDirectory() as out, SwarmUp(Path(out), *args) as up:
+        first = up.wait_ticking(timeout_s=600)
         t0 = time.monotonic()
         time.sleep(window_s)
-        second = up.world_status()
+        second = up.world_status(timeout_s=10)
         wall = time.monotonic() - t0
         assert second is not None
-        return (second.t_s - first.t_s) / wall
+        return (second.t_s - first.t_s) / wall, window_profile(
+            first.lockstep_profile, second.lockstep_profile
+        )
+
+
+def window_profile(
+    first: LockstepProfileReport | None, second: LockstepProfileReport | None
+) -> LockstepProfileReport | None:
+    """The ticks between two of the world's profiles (means since time started)."""
+    if first is None or second is None or second.ticks <= first.ticks:
+        return second
+    ticks = second.ticks - first.ticks
+    phases = {
+        phase: (ms * second.ticks - first.phase_ms_per_tick[phase] * first.ticks) / ticks
+        for phase, ms in second.phase_ms_per_tick.items()
+    }
+    return second.model_copy(update={"ticks": ticks, "phase_ms_per_tick": phases})
+
+
+def print_lockstep(label: str, runs: list[tuple[float, LockstepProfileReport | None]]) -> None:
+    speedups = [speedup for speedup, _ in runs]
+    print(
+        f"lockstep speed-up over real time, {label}: {statistics.median(speedups):.2f}x "
+        f"(runs: {', '.join(f'{s:.2f}' for s in speedups)})"
+    )
+    profiles = [p for _, p in runs if p is not None]
+    if not profiles:
+        return
+    phases = list(profiles[0].phase_ms_per_tick)
+    total = statistics.median(sum(p.phase_ms_per_tick.values()) for p in profiles)
+    print(f"  {'phase of a tick (wall ms, mean)':<34} {'ms':>7} {'share':>6}")
+    for phase in phases:
+        ms = statistics.median(p.phase_ms_per_tick[phase] for p in profiles)
+        print(f"  {phase:<34} {ms:>7.3f} {100 * ms / total:>5.0f}%")
+    print(f"  {'tick':<34} {total:>7.3f}")
+    answers = [ms for p in profiles for ms in p.answer_p50_ms.values()]
+    if answers:
+        print(
+            f"  robot answer (sense out -> act in), median over robots of p50: "
+            f"{statistics.median(answers):.3f} ms (min {min(answers):.3f}, max {max(answers):.3f})"
+        )
 
 
 def realtime_run() -> tuple[dict, dict[str, float | None]]:
@@ -155,19 +222,31 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--only", choices=("lockstep", "realtime", "hop"), default=None)
     args = parser.parse_args()
     print("# networked swarm runtime")
     for line in machine_lines():
         print(line)
-    print(f"# paper scenario, 3 robots; median of {args.runs} runs")
+    print(f"# paper scenario, 3 robots, unless said; median of {args.runs} runs")
     print()
-    speedups = [lockstep_speedup(10.0) for _ in range(args.runs)]
-    print(
-        f"lockstep speed-up over real time: {statistics.median(speedups):.2f}x "
-        f"(runs: {', '.join(f'{s:.2f}' for s in speedups)}; goal 10x)"
-    )
-    print()
-    timings, cpus = zip(*(realtime_run() for _ in range(args.runs)), strict=True)
+    if args.only in (None, "lockstep"):
+        print_lockstep("3 robots (goal 10x)", [lockstep_speedup(10.0) for _ in range(args.runs)])
+        with tempfile.TemporaryDirectory() as scenarios:
+            wedge = wedge_scenario(Path(scenarios), WEDGE_ROBOTS)
+            print_lockstep(
+                f"{WEDGE_ROBOTS}-robot wedge (goal 3x)",
+                [lockstep_speedup(20.0, wedge) for _ in range(args.runs)],
+            )
+        print()
+    if args.only in (None, "realtime"):
+        realtime_tables(args.runs)
+        print()
+    if args.only in (None, "hop"):
+        hop_table(args.samples)
+
+
+def realtime_tables(runs: int) -> None:
+    timings, cpus = zip(*(realtime_run() for _ in range(runs)), strict=True)
     print(f"{'robot':<8} {'ticks':>6} {'misses':>7} {'miss %':>7} {'jitter p99 ms':>14}")
     for name in sorted(timings[0]):
         rows = [t[name] for t in timings]
@@ -182,8 +261,10 @@ def main() -> None:
     for name in cpus[0]:
         values = [c[name] for c in cpus if c.get(name) is not None]
         print(f"{name:<8} {statistics.median(values) if values else float('nan'):>18.1f}")
-    print()
-    radio, raw = one_hop_latency_ms(args.samples)
+
+
+def hop_table(samples: int) -> None:
+    radio, raw = one_hop_latency_ms(samples)
     print(f"{'path (ideal profile)':<42} {'p50 ms':>7} {'p99 ms':>7} {'n':>5}")
     for label, values in (
         ("robot1 -> world -> robot2 (radio hop)", radio),
@@ -193,6 +274,8 @@ def main() -> None:
             f"{label:<42} {np.percentile(values, 50):>7.3f} "
             f"{np.percentile(values, 99):>7.3f} {len(values):>5}"
         )
+    ratio = np.percentile(radio, 50) / np.percentile(raw, 50)
+    print(f"radio hop / raw ping-pong, p50: {ratio:.2f}x (goal at most 3x)")
 
 
 if __name__ == "__main__":
