@@ -36,15 +36,29 @@ def as_rows(
 def rows_of(
     batch: tuple[int, ...], *arguments: tuple[ArrayLike, int, DTypeLike]
 ) -> list[NDArray[Any]]:
-    """As `as_rows` for a known batch shape: arrays that already have it are only reshaped."""
+    """As `as_rows` for a known batch shape: arrays that already have it are only reshaped.
+
+    One robot (batch ()) is the firmware's case, every tick: an array of the right dtype with
+    only its core dimensions becomes a (1, *core) view with no other work."""
     rows = []
+    single = batch == ()
     for a, core, dtype in arguments:
-        array = a if isinstance(a, np.ndarray) and a.dtype == dtype else np.asarray(a, dtype)
+        wanted = _DTYPES.get(dtype) or np.dtype(dtype)  # type: ignore[call-overload]
+        if type(a) is np.ndarray and a.dtype is wanted:
+            if single and a.ndim == core:
+                rows.append(a[np.newaxis])
+                continue
+            array = a
+        else:
+            array = np.asarray(a, wanted)
         shape = array.shape[array.ndim - core :] if core else ()
         if array.shape[: array.ndim - core] != batch:
             array = np.broadcast_to(array, batch + shape)
         rows.append(array.reshape((-1,) + shape))
     return rows
+
+
+_DTYPES: dict[Any, np.dtype[Any]] = {t: np.dtype(t) for t in (np.float64, np.int64, np.bool_)}
 
 
 def from_rows(rows: NDArray[Any], batch: tuple[int, ...]) -> NDArray[Any]:

@@ -98,8 +98,8 @@ class MotorDriver:
         command = np.asarray(duty, dtype=np.float64)
         if command.shape != (self.wheel_count,):
             raise ValueError(f"{command.shape} duties for {self.wheel_count} wheels")
-        command = np.clip(np.nan_to_num(command, nan=0.0, posinf=0.0, neginf=0.0), -1.0, 1.0)
-        for wheel, wheel_duty in enumerate(command.tolist()):
+        clipped = [min(max(d, -1.0), 1.0) if math.isfinite(d) else 0.0 for d in command.tolist()]
+        for wheel, wheel_duty in enumerate(clipped):
             duty_ticks = round(abs(wheel_duty) * self._period_ticks[wheel])
             ctrl = _CTRL_REVERSE if wheel_duty < 0.0 else _CTRL_FORWARD
             previous_ticks = self._duty_written[wheel]
@@ -109,7 +109,7 @@ class MotorDriver:
             else:
                 self._write_duty(wheel, duty_ticks)
                 self._write_ctrl(wheel, ctrl)
-        self.last_duty = tuple(float(d) for d in command.tolist())
+        self.last_duty = tuple(clipped)
 
     def stop(self) -> None:
         """Duty 0 on every wheel (outputs stay enabled, at zero drive)."""
