@@ -18,7 +18,9 @@ reply as `WorldStatusReply` (robot_firmware/net/messages.py):
   in a row, and no collision, within --timeout s;
 * gone: after a kill, the world sees --robot leave within 10 s; --observe s later the others are
   still live, it stays down, the world's clock advanced at least half as much as the wall's,
-  no collision and the leader still on its trajectory;
+  no collision, and the leader on its trajectory, or back on it within 15 s more: a leader
+  going round the scenario's obstacle is off it for seconds every lap (the paper's: up to 87 cm
+  for 4 s of its 18 s lap), longer where the killed robot's braked body blocks the way round;
 * rejoin: --robot is live again within 20 s of its restart, then the formation holds as above
   (--timeout counts from the start of the check);
 * final: the world answers and reports no collision.
@@ -56,6 +58,11 @@ T = TypeVar("T")
 
 GONE_WITHIN_S = 10.0
 """How soon after a kill the world must stop listing the robot as live."""
+LEADER_BACK_WITHIN_S = 15.0
+"""How long after the observation a leader off its trajectory may take to be back on it: a
+detour round an obstacle, or round the killed robot's body where it blocks the way, lasts a few
+seconds (the paper's lap takes 18 s: its obstacle detour about 4 s of it, up to 8 s when the
+braked body of the killed follower lies beside the way round)."""
 LIVE_AGAIN_WITHIN_S = 20.0
 """How soon after a restart the world must list the robot as live again."""
 SHOW_EVERY_S = 5.0
@@ -150,11 +157,10 @@ def after_kill_problems(
     dead: str,
     robots: Sequence[str],
     observe_s: float,
-    max_error_m: float,
 ) -> list[str]:
-    """What is wrong `observe_s` after the world saw `dead` leave (`before`), in `after`."""
+    """What is wrong `observe_s` after the world saw `dead` leave (`before`), in `after`; the
+    leader's tracking is judged apart (`check_gone`)."""
     others = [n for n in robots if n != dead]
-    leader = robots[0]
     advanced_s = after.t_s - before.t_s
     problems = []
     if not set(others) <= set(after.live):
@@ -165,8 +171,6 @@ def after_kill_problems(
         problems.append(f"the world advanced only {advanced_s:.1f} s in {observe_s:g} s")
     if after.metrics.collisions:
         problems.append(f"the world reports {after.metrics.collisions} collisions")
-    if leader != dead and position_error_m(after, leader) >= max_error_m:
-        problems.append(f"the leader {leader} left its trajectory")
     return problems
 
 
@@ -321,9 +325,31 @@ def check_gone(
     if after is None:
         raise CheckFailedError("the world stopped answering after the kill")
     probe.show(after)
-    problems = after_kill_problems(before, after, dead, robots, observe_s, max_error_m)
+    problems = after_kill_problems(before, after, dead, robots, observe_s)
     if problems:
         raise CheckFailedError(f"after the kill of {dead}: {'; '.join(problems)}")
+    leader = robots[0]
+    if leader != dead and position_error_m(after, leader) >= max_error_m:
+        print(
+            f"    the leader {leader} is {100 * position_error_m(after, leader):.1f} cm off its "
+            f"trajectory: waiting up to {LEADER_BACK_WITHIN_S:g} s for it to be back on it"
+        )
+
+        def leader_back() -> WorldStatusReply | None:
+            status = probe.status()
+            if status is None or position_error_m(status, leader) >= max_error_m:
+                return None
+            return status
+
+        failure = (
+            f"after the kill of {dead}: the leader {leader} left its trajectory (not back on "
+            f"it within {LEADER_BACK_WITHIN_S:g} s)"
+        )
+        after = probe.wait(leader_back, LEADER_BACK_WITHIN_S, 0.2, failure)
+        probe.show(after)
+        problems = after_kill_problems(before, after, dead, robots, observe_s)
+        if problems:
+            raise CheckFailedError(f"after the kill of {dead}: {'; '.join(problems)}")
     others = ", ".join(n for n in robots if n != dead)
     print(
         f"    {others} kept going: {after.t_s - before.t_s:.1f} s of world time in "
@@ -537,7 +563,7 @@ def _budget_s(args: argparse.Namespace) -> float:
     """The longest a swarm check may take before its watchdog ends it."""
     budget_s = float(args.timeout) if "timeout" in args else GONE_WITHIN_S
     if args.check == "gone":
-        budget_s = GONE_WITHIN_S + args.observe
+        budget_s = GONE_WITHIN_S + args.observe + LEADER_BACK_WITHIN_S
     if args.check == "rejoin":
         budget_s += LIVE_AGAIN_WITHIN_S
     return budget_s + WATCHDOG_MARGIN_S

@@ -219,20 +219,61 @@ def test_gone_fails_when_the_robot_stays_listed() -> None:
 def test_after_kill_problems_names_each_problem() -> None:
     before = status(t_s=20.0, live=["robot1", "robot3"])
     fine = status(t_s=24.0, live=["robot1", "robot3"])
-    assert after_kill_problems(before, fine, "robot2", ROBOTS, 5.0, 0.05) == []
+    assert after_kill_problems(before, fine, "robot2", ROBOTS, 5.0) == []
     bad = status(
         t_s=22.0,
         live=["robot1", "robot2"],
         errors_m={"robot1": 0.07, "robot2": 0.0, "robot3": 0.0},
         collisions=2,
     )
-    assert after_kill_problems(before, bad, "robot2", ROBOTS, 5.0, 0.05) == [
+    assert after_kill_problems(before, bad, "robot2", ROBOTS, 5.0) == [
         "robot1, robot3 did not all stay live",
         "robot2 came back by itself (its restart policy should be 'no')",
         "the world advanced only 2.0 s in 5 s",
         "the world reports 2 collisions",
-        "the leader robot1 left its trajectory",
     ]
+
+
+OFF_TRACK = {"robot1": 0.9, "robot2": 0.3, "robot3": 0.01}
+
+
+def test_gone_waits_for_a_leader_on_a_detour_to_be_back_on_its_trajectory() -> None:
+    down = ["robot1", "robot3"]
+    probe, clock = probe_of(
+        [
+            status(t_s=20.0),
+            status(t_s=20.2, live=down),
+            status(t_s=25.1, live=down, errors_m=OFF_TRACK),
+            status(t_s=25.3, live=down, errors_m=OFF_TRACK),
+            status(t_s=25.5, live=down),
+        ]
+    )
+    check_gone(probe, ROBOTS, "robot2", 5.0, 0.05)
+    assert clock.sleeps_s == [0.2, 5.0, 0.2]
+
+
+def test_gone_fails_when_the_leader_stays_off_its_trajectory() -> None:
+    down = ["robot1", "robot3"]
+    probe, _ = probe_of(
+        [status(t_s=20.0), status(t_s=20.2, live=down)]
+        + [status(t_s=25.1, live=down, errors_m=OFF_TRACK)]
+    )
+    with pytest.raises(CheckFailedError, match="the leader robot1 left its trajectory"):
+        check_gone(probe, ROBOTS, "robot2", 5.0, 0.05)
+
+
+def test_gone_fails_on_a_collision_while_the_leader_comes_back() -> None:
+    down = ["robot1", "robot3"]
+    probe, _ = probe_of(
+        [
+            status(t_s=20.0),
+            status(t_s=20.2, live=down),
+            status(t_s=25.1, live=down, errors_m=OFF_TRACK),
+            status(t_s=26.0, live=down, collisions=1),
+        ]
+    )
+    with pytest.raises(CheckFailedError, match="the world reports 1 collisions"):
+        check_gone(probe, ROBOTS, "robot2", 5.0, 0.05)
 
 
 def test_rejoin_counts_its_time_out_from_the_restart() -> None:
