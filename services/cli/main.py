@@ -683,7 +683,9 @@ def _cm(value: object) -> str:
     return f"{100.0 * float(value):.2f} cm"  # type: ignore[arg-type]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(robot_only: bool = False) -> argparse.ArgumentParser:
+    """The `swarm` parser; `robot_only` leaves out the subcommands whose modules a robot process
+    must not load (the tuner pulls in the batch simulator, the world and numba)."""
     parser = argparse.ArgumentParser(
         prog="swarm",
         description=(
@@ -992,6 +994,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     router.add_argument("--config", metavar="FILE", help="json5 router config")
     router.set_defaults(handler=_cmd_router)
+    if robot_only:
+        return parser
 
     from services.cli.faults import add_fault_parser
     from services.dashboard.cli import add_dashboard_parsers
@@ -1010,8 +1014,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=os.environ.get("SWARM_LOG_LEVEL", "INFO"),
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    given = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(robot_only=given[:1] == ["robot"])
+    args = parser.parse_args(given)
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE

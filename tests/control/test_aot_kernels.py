@@ -182,3 +182,20 @@ def test_call_with_other_types_runs_the_python_function() -> None:
         assert kernel(*bad) == "python"
     assert kernel.mismatches == 6
     assert len(compiled_calls) == 1
+
+
+ROBOT_IMPORTS = """
+import sys
+import services.cli.main
+services.cli.main.build_parser(robot_only=True)
+import robot_firmware.runtime
+from robot_firmware.control import kernels
+heavy = sorted({m.split(".")[0] for m in sys.modules} & {"numba", "llvmlite", "scipy", "world"})
+print(kernels.MODE, ",".join(heavy) or "-")
+"""
+
+
+def test_swarm_robot_loads_neither_numba_nor_the_world(aot_built: Path) -> None:
+    ran = _run(ROBOT_IMPORTS, {"SWARM_KERNELS": "aot"})
+    assert ran.returncode == 0, ran.stderr.decode()
+    assert ran.stdout.decode().split() == ["aot", "-"]
