@@ -25,7 +25,10 @@ leader takes the slot the acting leader vacated).  Each change is an event in `e
 leader.
 
 `MetricsAccumulator` consumes one sample at a time for any batch shape, so a live process and the
-batch simulator produce the same numbers from the same code.
+batch simulator produce the same numbers from the same code: the sample's math is the compiled
+`accumulate_sample` (numba), one world at a time, which the accumulator runs over its batch and
+the batch simulator's compiled tick loop calls directly (services/sim/ticks.py) on the
+accumulator's own arrays.  tests/world/oracle.py states the same update in numpy.
 """
 
 from __future__ import annotations
@@ -35,10 +38,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
-from robot_firmware.control.angles import wrap_angle_rad
-from robot_firmware.control.formation import follower_slot_in_world
+from robot_firmware.control.angles import wrap_angle, wrap_angle_rad
+from robot_firmware.control.formation import follower_slot_in_world, slot_in_world
 from swarm_config.metrics import MetricsConfig
 from swarm_config.scenario import Scenario
 
@@ -119,6 +123,220 @@ def robot_gaps(positions_m: FloatArray, body_radius_m: float) -> FloatArray:
     gaps = np.hypot(d[..., 0], d[..., 1]) - 2.0 * body_radius_m
     n = positions_m.shape[-2]
     return np.where(np.eye(n, dtype=bool), np.inf, gaps)
+
+
+MetricsConstants = tuple[float, float, float, float, float]
+"""Body radius, the obstacle distance that makes a sample not nominal (ρ₀ + 2·body radius),
+steady-state start, nominal hold and fitness window start (s)."""
+
+
+def metrics_constants(config: MetricsConfig) -> MetricsConstants:
+    """`config` as `accumulate_sample` takes it."""
+    return (
+        float(config.body_radius_m),
+        float(config.apf_influence_m + 2.0 * config.body_radius_m),
+        float(config.steady_state_start_s),
+        float(config.nominal_hold_s),
+        float(config.fitness_window_start_s),
+    )
+
+
+@njit(cache=True)
+def _pairwise_block(values: FloatArray, start: int, count: int) -> float:
+    """numpy's pairwise sum of at most 128 values: eight running sums, then the rest."""
+    if count < 8:
+        total = 0.0
+        for i in range(start, start + count):
+            total += values[i]
+        return total
+    r = np.empty(8)
+    for j in range(8):
+        r[j] = values[start + j]
+    i = 8
+    while i < count - count % 8:
+        for j in range(8):
+            r[j] += values[start + i + j]
+        i += 8
+    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < count:
+        total += values[start + i]
+        i += 1
+    return total
+
+
+@njit(cache=True)
+def pairwise_sum(values: FloatArray) -> float:
+    """Σ values in numpy's pairwise order (`np.sum` of a contiguous run), so that a compiled sum
+    equals numpy's to the last bit: runs longer than 128 split in two halves (the first a
+    multiple of 8 long) summed alike.  The halving is unrolled onto a stack (numba cannot
+    cache a recursive function)."""
+    # Post-order walk of the halving tree: (start, count, halves done) and partial results.
+    starts = np.empty(64, dtype=np.int64)
+    counts = np.empty(64, dtype=np.int64)
+    visited = np.zeros(64, dtype=np.bool_)
+    partial = np.empty(64)
+    top = 0
+    starts[0] = 0
+    counts[0] = values.shape[0]
+    results = 0
+    while top >= 0:
+        start, count = starts[top], counts[top]
+        if count <= 128:
+            partial[results] = _pairwise_block(values, start, count)
+            results += 1
+            top -= 1
+        elif visited[top]:
+            partial[results - 2] = partial[results - 2] + partial[results - 1]
+            results -= 1
+            top -= 1
+        else:
+            visited[top] = True
+            half = count // 2
+            half -= half % 8
+            starts[top + 1], counts[top + 1], visited[top + 1] = start + half, count - half, False
+            starts[top + 2], counts[top + 2], visited[top + 2] = start, half, False
+            top += 2
+    return partial[0]
+
+
+@njit(cache=True)
+def accumulate_sample(
+    w: int,
+    t_s: float,
+    true_pose: FloatArray,
+    trajectory_pose: FloatArray,
+    lead: int,
+    slot_distance_m: FloatArray,
+    slot_angle_rad: FloatArray,
+    obstacle_centres_m: FloatArray,
+    obstacle_radii_m: FloatArray,
+    constants: MetricsConstants,
+    contacts: BoolArray,
+    contacts_known: bool,
+    previous: BoolArray,
+    previous_known: bool,
+    per_robot: tuple,
+    per_run: tuple,
+    errors_out: FloatArray,
+    contacts_out: BoolArray,
+    scratch: FloatArray,
+) -> None:
+    """Add one sample of world w: true poses (N, 3) against the trajectory pose (3,).
+
+    slot_* (N,) are the slots relative to robot `lead`, the acting leader.  contacts (N, N + M)
+    as the physics reported them (contacts_known false: derived from the gaps), previous the
+    last sample's.  per_robot: the accumulator's (W, N) arrays in `MetricsAccumulator.
+    ROBOT_FIELDS` order, per_run its (W,) arrays in `RUN_FIELDS` order; updated in place.
+    Writes the errors (N, 3) and the contacts taken (N, N + M); scratch holds 3N floats.
+    """
+    body_radius_m, near_limit_m, steady_start_s, hold_s, fitness_start_s = constants
+    (last_near_s, sq_pos_nom, sq_head_nom, count_nom, sq_pos_all, sq_head_all, count_all,
+     max_pos_nom, max_pos_all, sq_pos_nom_lead, sq_head_nom_lead, count_nom_lead,
+     sq_pos_all_lead, sq_head_all_lead, count_all_lead) = per_robot  # fmt: skip
+    sum_abs_error, count_fitness, min_robot_gap, min_obstacle_gap, collisions = per_run
+    n = true_pose.shape[0]
+    m = obstacle_radii_m.shape[0]
+    lx = true_pose[lead, 0]
+    ly = true_pose[lead, 1]
+    ltheta = true_pose[lead, 2]
+    onsets = 0
+    for i in range(n):
+        # Reference: the trajectory for the leader, the slot of eq. 17 for a follower.
+        if i == lead:
+            rx, ry, rtheta = trajectory_pose[0], trajectory_pose[1], trajectory_pose[2]
+        else:
+            rx, ry = slot_in_world(lx, ly, ltheta, slot_distance_m[i], slot_angle_rad[i])
+            rtheta = ltheta
+        errors_out[i, 0] = true_pose[i, 0] - rx
+        errors_out[i, 1] = true_pose[i, 1] - ry
+        errors_out[i, 2] = wrap_angle(true_pose[i, 2] - rtheta)
+        for j in range(m):
+            gap = math.hypot(rx - obstacle_centres_m[j, 0], ry - obstacle_centres_m[j, 1])
+            if gap - obstacle_radii_m[j] <= near_limit_m:
+                last_near_s[w, i] = t_s
+        # Gaps, contacts and their onsets.
+        x = true_pose[i, 0]
+        y = true_pose[i, 1]
+        for j in range(n):
+            gap = math.inf
+            if j != i:
+                gap = math.hypot(x - true_pose[j, 0], y - true_pose[j, 1]) - 2.0 * body_radius_m
+            min_robot_gap[w] = min(min_robot_gap[w], gap)
+            touching = contacts[i, j] if contacts_known else gap < 0.0
+            contacts_out[i, j] = touching
+            if touching and j > i and not (previous_known and previous[i, j]):
+                onsets += 1
+        for j in range(m):
+            centre_gap = math.hypot(x - obstacle_centres_m[j, 0], y - obstacle_centres_m[j, 1])
+            gap = (centre_gap - obstacle_radii_m[j]) - body_radius_m
+            min_obstacle_gap[w] = min(min_obstacle_gap[w], gap)
+            touching = contacts[i, n + j] if contacts_known else gap < 0.0
+            contacts_out[i, n + j] = touching
+            if touching and not (previous_known and previous[i, n + j]):
+                onsets += 1
+    collisions[w] += onsets
+
+    if t_s >= steady_start_s:
+        for i in range(n):
+            nominal = (t_s - last_near_s[w, i]) >= hold_s
+            pos_sq = errors_out[i, 0] * errors_out[i, 0] + errors_out[i, 1] * errors_out[i, 1]
+            head_sq = errors_out[i, 2] * errors_out[i, 2]
+            if i == lead:
+                sq_pos_all_lead[w, i] += pos_sq
+                sq_head_all_lead[w, i] += head_sq
+                count_all_lead[w, i] += 1.0
+                if nominal:
+                    sq_pos_nom_lead[w, i] += pos_sq
+                    sq_head_nom_lead[w, i] += head_sq
+                    count_nom_lead[w, i] += 1.0
+            else:
+                sq_pos_all[w, i] += pos_sq
+                sq_head_all[w, i] += head_sq
+                count_all[w, i] += 1.0
+                pos = math.sqrt(pos_sq)
+                max_pos_all[w, i] = max(max_pos_all[w, i], pos)
+                if nominal:
+                    sq_pos_nom[w, i] += pos_sq
+                    sq_head_nom[w, i] += head_sq
+                    count_nom[w, i] += 1.0
+                    max_pos_nom[w, i] = max(max_pos_nom[w, i], pos)
+    if t_s >= fitness_start_s:
+        for i in range(n):
+            for a in range(3):
+                scratch[3 * i + a] = abs(errors_out[i, a])
+        sum_abs_error[w] += pairwise_sum(scratch)
+        count_fitness[w] += 1.0
+
+
+@njit(cache=True)
+def _accumulate_worlds(
+    t_s: float,
+    true_pose: FloatArray,
+    trajectory_pose: FloatArray,
+    lead: int,
+    slot_distance_m: FloatArray,
+    slot_angle_rad: FloatArray,
+    obstacle_centres_m: FloatArray,
+    obstacle_radii_m: FloatArray,
+    constants: MetricsConstants,
+    contacts: BoolArray,
+    contacts_known: bool,
+    previous: BoolArray,
+    previous_known: bool,
+    per_robot: tuple,
+    per_run: tuple,
+) -> tuple[FloatArray, BoolArray]:
+    worlds, n = true_pose.shape[0], true_pose.shape[1]
+    errors = np.empty((worlds, n, 3))
+    taken = np.empty((worlds, n, n + obstacle_radii_m.shape[0]), dtype=np.bool_)
+    scratch = np.empty(3 * n)
+    for w in range(worlds):
+        accumulate_sample(
+            w, t_s, true_pose[w], trajectory_pose[w], lead, slot_distance_m, slot_angle_rad,
+            obstacle_centres_m, obstacle_radii_m, constants, contacts[w], contacts_known,
+            previous[w], previous_known, per_robot, per_run, errors[w], taken[w], scratch,
+        )  # fmt: skip
+    return errors, taken
 
 
 class MetricsAccumulator:
@@ -252,61 +470,92 @@ class MetricsAccumulator:
         contacts: (..., N, N + M) which pairs touch now, as reported by the physics; if omitted
         they are derived from the gaps.
         """
-        cfg = self.config
-        reference = reference_points(true_pose, trajectory_pose, self.layout, self.leader_index)
-        errors = sample_errors(true_pose, reference)
-        near = obstacle_gaps(reference[..., :2], self.obstacle_centres_m, self.obstacle_radii_m)
-        limit = cfg.apf_influence_m + 2.0 * cfg.body_radius_m
-        near_any = np.any(near <= limit, axis=-1)
-        self.last_near_obstacle_s = np.where(near_any, t_s, self.last_near_obstacle_s)
-
-        rgaps = robot_gaps(true_pose[..., :2], cfg.body_radius_m)
-        ogaps = obstacle_gaps(true_pose[..., :2], self.obstacle_centres_m, self.obstacle_radii_m)
-        ogaps = ogaps - cfg.body_radius_m
-        self.min_robot_gap_m = np.minimum(self.min_robot_gap_m, np.min(rgaps, axis=(-2, -1)))
-        if ogaps.shape[-1]:
-            self.min_obstacle_gap_m = np.minimum(
-                self.min_obstacle_gap_m, np.min(ogaps, axis=(-2, -1))
-            )
-        if contacts is None:
-            contacts = np.concatenate((rgaps < 0.0, ogaps < 0.0), axis=-1)
-        previous = self._previous_contacts
-        onset = contacts if previous is None else contacts & ~previous
-        self._previous_contacts = contacts
         n = len(self.layout.names)
-        upper = np.triu(np.ones((n, n), dtype=bool), k=1)
-        rr_onsets = np.sum(onset[..., :n] & upper, axis=(-2, -1))
-        ro_onsets = np.sum(onset[..., n:], axis=(-2, -1))
-        self.collisions += rr_onsets + ro_onsets
-
-        if t_s >= cfg.steady_state_start_s:
-            nominal = (t_s - self.last_near_obstacle_s) >= cfg.nominal_hold_s
-            pos_sq = errors[..., 0] ** 2 + errors[..., 1] ** 2
-            head_sq = errors[..., 2] ** 2
-            leads = np.arange(len(self.layout.names)) == self.leader_index
-            follows = ~leads
-            self.sum_sq_position_all += np.where(follows, pos_sq, 0.0)
-            self.sum_sq_heading_all += np.where(follows, head_sq, 0.0)
-            self.count_all += follows
-            self.sum_sq_position_nominal += np.where(nominal & follows, pos_sq, 0.0)
-            self.sum_sq_heading_nominal += np.where(nominal & follows, head_sq, 0.0)
-            self.count_nominal += nominal & follows
-            self.sum_sq_position_all_lead += np.where(leads, pos_sq, 0.0)
-            self.sum_sq_heading_all_lead += np.where(leads, head_sq, 0.0)
-            self.count_all_lead += leads
-            self.sum_sq_position_nominal_lead += np.where(nominal & leads, pos_sq, 0.0)
-            self.sum_sq_heading_nominal_lead += np.where(nominal & leads, head_sq, 0.0)
-            self.count_nominal_lead += nominal & leads
-            pos = np.where(follows, np.sqrt(pos_sq), 0.0)
-            self.max_position_all = np.maximum(self.max_position_all, pos)
-            self.max_position_nominal = np.maximum(
-                self.max_position_nominal, np.where(nominal, pos, 0.0)
-            )
-        if t_s >= cfg.fitness_window_start_s:
-            self.sum_abs_error += np.sum(np.abs(errors), axis=(-2, -1))
-            self.count_fitness += 1.0
+        batch = self.count_all.shape[:-1]
+        pose = np.ascontiguousarray(np.broadcast_to(true_pose, batch + (n, 3)), dtype=np.float64)
+        worlds = int(np.prod(batch, dtype=np.int64))
+        width = n + len(self.obstacle_radii_m)
+        trajectory = np.ascontiguousarray(
+            np.broadcast_to(trajectory_pose, batch + (3,)), dtype=np.float64
+        )
+        known = contacts is not None
+        previous = self._previous_contacts
+        distance_m, angle_rad = self.slots_relative_to(self.leader_index)
+        errors, taken = _accumulate_worlds(
+            float(t_s), pose.reshape(worlds, n, 3), trajectory.reshape(worlds, 3),
+            self.leader_index, distance_m, angle_rad, self.obstacle_centres_m,
+            self.obstacle_radii_m, metrics_constants(self.config),
+            self._contact_rows(contacts, worlds, width), known,
+            self._contact_rows(previous, worlds, width), previous is not None,
+            *self.kernel_arrays(worlds),
+        )  # fmt: skip
+        self._previous_contacts = taken.reshape(batch + (n, width))
         self.last_t_s = t_s
-        return errors
+        return errors.reshape(batch + (n, 3))
+
+    ROBOT_FIELDS = (
+        "last_near_obstacle_s",
+        "sum_sq_position_nominal",
+        "sum_sq_heading_nominal",
+        "count_nominal",
+        "sum_sq_position_all",
+        "sum_sq_heading_all",
+        "count_all",
+        "max_position_nominal",
+        "max_position_all",
+        *LEAD_FIELDS,
+    )
+    """The per-robot arrays, in the order `accumulate_sample` takes them."""
+    RUN_FIELDS = (
+        "sum_abs_error",
+        "count_fitness",
+        "min_robot_gap_m",
+        "min_obstacle_gap_m",
+        "collisions",
+    )
+    """The per-run arrays, in the order `accumulate_sample` takes them."""
+
+    def slots_relative_to(self, lead: int) -> tuple[FloatArray, FloatArray]:
+        """Slot distances and angles (N,) with robot `lead` leading: the scenario's leader
+        takes the slot it vacated (`reference_points`)."""
+        layout = self.layout
+        distance_m = np.array(layout.slot_distance_m, dtype=np.float64)
+        angle_rad = np.array(layout.slot_angle_rad, dtype=np.float64)
+        if lead != layout.leader_index:
+            distance_m[layout.leader_index] = layout.slot_distance_m[lead]
+            angle_rad[layout.leader_index] = layout.slot_angle_rad[lead]
+        return distance_m, angle_rad
+
+    def kernel_arrays(self, worlds: int) -> tuple[tuple[NDArray[np.generic], ...], ...]:
+        """The per-robot (worlds, N) and per-run (worlds,) arrays as `accumulate_sample` takes
+        them: views that it updates in place."""
+        n = len(self.layout.names)
+        return (
+            tuple(self._field_rows(name, (worlds, n)) for name in self.ROBOT_FIELDS),
+            tuple(self._field_rows(name, (worlds,)) for name in self.RUN_FIELDS),
+        )
+
+    def samples_taken(self, t_s: float, contacts: BoolArray) -> None:
+        """Samples up to t_s were added outside `update` (on `kernel_arrays`), the last one with
+        these contacts (..., N, N + M)."""
+        self._previous_contacts = np.array(contacts, dtype=bool)
+        self.last_t_s = t_s
+
+    def _field_rows(self, name: str, shape: tuple[int, ...]) -> NDArray[np.generic]:
+        """The accumulator array `name` as a (worlds, ...) view the kernel updates in place."""
+        array = getattr(self, name)
+        if not array.flags.c_contiguous or not array.flags.writeable:
+            array = np.ascontiguousarray(array).copy()
+            setattr(self, name, array)
+        view = array.reshape(shape)
+        assert np.shares_memory(view, array)
+        return view
+
+    @staticmethod
+    def _contact_rows(contacts: BoolArray | None, worlds: int, width: int) -> BoolArray:
+        if contacts is None:
+            return np.zeros((worlds, 0, width), dtype=np.bool_)
+        return np.ascontiguousarray(contacts, dtype=np.bool_).reshape(worlds, -1, width)
 
     def _rms(self, sum_sq: FloatArray, count: FloatArray) -> FloatArray:
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -17,9 +17,11 @@ Body contacts are circles against circles: an overlap is pushed apart along the 
 and reported so that collisions can be counted.  All functions are pure; randomness comes from
 an injected generator.
 
-The math is compiled (numba): `advance_body` steps one body and `push_apart` one world's
-contacts; `step_bodies` and `resolve_contacts` run them over any batch shape, the batch
-simulator's B worlds in parallel.  tests/control/oracle.py states the same steps in numpy.
+The math is compiled (numba): `advance_body` steps one body, `push_apart` one world's contacts
+and `encoder_count` reads one wheel's encoder; `step_bodies`, `resolve_contacts` and
+`encoder_counts` run them over any batch shape (the world process), and the batch simulator's
+compiled tick loop calls them directly (services/sim/ticks.py).  tests/control/oracle.py
+states the same steps in numpy.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, vectorize
 from numpy.typing import NDArray
 
 from robot_firmware.control.angles import wrap_angle
@@ -85,7 +87,7 @@ def advance_body(
     wheel_angle_out: FloatArray,
     slip_out: FloatArray,
 ) -> None:
-    """One body over dt_s with its duty held; `body` is `_body_constants(params)`."""
+    """One body over dt_s with its duty held; `body` is `body_constants(params)`."""
     tau, no_load_radps, wheel_radius_m, wheel_base_m, correlation_s, slip_std = body
     decay = math.exp(-dt_s / tau)
     steady = np.empty(4)
@@ -131,7 +133,9 @@ def advance_body(
         slip_out[k] = rho * slip[k] + spread * slip_noise[k]
 
 
-def _body_constants(params: BodyParams) -> tuple[float, float, float, float, float, float]:
+def body_constants(params: BodyParams) -> tuple[float, float, float, float, float, float]:
+    """`params` as `advance_body` takes them: motor time constant, no-load speed, wheel radius,
+    wheel base, slip correlation time and slip std."""
     return (
         float(params.motor_time_constant_s),
         float(params.motor_no_load_speed_radps),
@@ -185,7 +189,7 @@ def step_bodies(
     )
     kernel = _step_rows_parallel if pose.shape[0] >= PARALLEL_MIN_ROWS else _step_rows_serial
     pose_out, speed_out, angle_out, slip_out = kernel(
-        pose, speed, angle, slip, held, noise, float(dt_s), _body_constants(params)
+        pose, speed, angle, slip, held, noise, float(dt_s), body_constants(params)
     )
     return BodyState(
         pose=from_rows(pose_out, batch),
@@ -195,9 +199,28 @@ def step_bodies(
     )
 
 
-def encoder_counts(wheel_angle_rad: FloatArray, counts_per_rev: int) -> IntArray:
+def counts_per_radian(counts_per_rev: int) -> float:
+    """Encoder counts per radian of wheel angle after 4x decoding."""
+    return counts_per_rev / (2.0 * math.pi)
+
+
+@njit(cache=True)
+def encoder_count(wheel_angle_rad: float, counts_per_rad: float) -> int:
     """Quadrature encoder position after 4x decoding: the angle quantised to whole counts."""
-    return np.floor(wheel_angle_rad * (counts_per_rev / (2.0 * np.pi))).astype(np.int64)
+    return math.floor(wheel_angle_rad * counts_per_rad)
+
+
+@vectorize(["int64(float64, float64)"], cache=True)
+def _encoder_counts(wheel_angle_rad: float, counts_per_rad: float) -> int:
+    return encoder_count(wheel_angle_rad, counts_per_rad)
+
+
+def encoder_counts(wheel_angle_rad: FloatArray, counts_per_rev: int) -> IntArray:
+    """`encoder_count` of every wheel angle (..., 4)."""
+    counts = _encoder_counts(
+        np.asarray(wheel_angle_rad, dtype=np.float64), counts_per_radian(counts_per_rev)
+    )
+    return np.asarray(counts, dtype=np.int64)
 
 
 @dataclass(frozen=True)

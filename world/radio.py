@@ -12,14 +12,22 @@ network fault sets them, world/faults.py) and may be cut (a partition).  A unifo
 table of scalars, so one function draws both, with the same draws: one uniform number per link
 for the loss and one for the delay, and one more for the burst state only when some link has a
 burst model.  With no network fault the draws are therefore exactly those of the profile.
+
+The math is compiled (numba): `next_link_state` moves one link's burst state and
+`link_delivery` decides one frame's fate on one link from its uniform draws; `draw_links`
+runs them over any shape of links (the world process), and the batch simulator's compiled tick
+loop calls them directly (services/sim/ticks.py).  The draws stay in numpy, in the same order.
+tests/world/oracle.py states the same model in numpy.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from swarm_config.radio import LinkProfile
@@ -80,6 +88,89 @@ class LinkDraw:
     in_bad_state: BoolArray
 
 
+@njit(cache=True)
+def next_link_state(
+    u_state: float, in_bad_state: bool, burst: bool, good_to_bad: float, bad_to_good: float
+) -> bool:
+    """A link's Gilbert-Elliott state after one frame: it flips with the transition
+    probability of the state it is in (u_state uniform on [0, 1)); no burst model: unchanged."""
+    if not burst:
+        return in_bad_state
+    if in_bad_state:
+        return u_state >= bad_to_good
+    return u_state < good_to_bad
+
+
+@njit(cache=True)
+def link_delivery(
+    u_loss: float,
+    u_delay: float,
+    in_bad_state: bool,
+    burst: bool,
+    loss: float,
+    loss_in_good: float,
+    loss_in_bad: float,
+    cut: bool,
+    link_length_m: float,
+    range_m: float,
+    latency_ms: float,
+    jitter_ms: float,
+) -> tuple[bool, float]:
+    """Whether one frame crosses a link (in its new burst state) and its delay in seconds."""
+    loss_now = (loss_in_bad if in_bad_state else loss_in_good) if burst else loss
+    lost = u_loss < loss_now
+    lost = lost or link_length_m > range_m or cut
+    delay_ms = latency_ms + jitter_ms * (2.0 * u_delay - 1.0)
+    return not lost, max(delay_ms, 0.0) / 1000.0
+
+
+@njit(cache=True)
+def _state_rows(
+    u_state: FloatArray,
+    in_bad: BoolArray,
+    burst: BoolArray,
+    good_to_bad: FloatArray,
+    bad_to_good: FloatArray,
+) -> BoolArray:
+    out = np.empty(u_state.shape[0], dtype=np.bool_)
+    for i in range(u_state.shape[0]):
+        out[i] = next_link_state(u_state[i], in_bad[i], burst[i], good_to_bad[i], bad_to_good[i])
+    return out
+
+
+@njit(cache=True)
+def _delivery_rows(
+    u_loss: FloatArray,
+    u_delay: FloatArray,
+    bad: BoolArray,
+    burst: BoolArray,
+    loss: FloatArray,
+    loss_in_good: FloatArray,
+    loss_in_bad: FloatArray,
+    cut: BoolArray,
+    length_m: FloatArray,
+    range_m: float,
+    latency_ms: FloatArray,
+    jitter_ms: FloatArray,
+) -> tuple[BoolArray, FloatArray]:
+    delivered = np.empty(u_loss.shape[0], dtype=np.bool_)
+    delay_s = np.empty(u_loss.shape[0])
+    for i in range(u_loss.shape[0]):
+        delivered[i], delay_s[i] = link_delivery(
+            u_loss[i], u_delay[i], bad[i], burst[i], loss[i], loss_in_good[i], loss_in_bad[i],
+            cut[i], length_m[i], range_m, latency_ms[i], jitter_ms[i],
+        )  # fmt: skip
+    return delivered, delay_s
+
+
+def _flat(arrays: list[NDArray[Any]], dtypes: list[type]) -> tuple[tuple[int, ...], list[Any]]:
+    """Broadcast `arrays` together; their shape and each one flat, contiguous, of its dtype."""
+    full = np.broadcast_arrays(*arrays)
+    shape = full[0].shape if full else ()
+    flat = [np.ascontiguousarray(a, dtype=d).reshape(-1) for a, d in zip(full, dtypes, strict=True)]
+    return shape, flat
+
+
 def draw_links(
     links: LinkProfile | LinkTable,
     in_bad_state: BoolArray,
@@ -92,18 +183,34 @@ def draw_links(
     shape = in_bad_state.shape
     u_loss = rng.random(shape)
     u_delay = rng.random(shape)
-    if not np.any(table.burst):
-        lost = u_loss < table.loss
-        bad = in_bad_state
-    else:
-        u_state = rng.random(shape)
-        flipped = np.where(in_bad_state, u_state >= table.bad_to_good, u_state < table.good_to_bad)
-        bad = np.where(table.burst, flipped, in_bad_state)
-        in_burst = np.where(bad, table.loss_in_bad, table.loss_in_good)
-        lost = u_loss < np.where(table.burst, in_burst, table.loss)
-    if table.range_m is not None and link_length_m is not None:
-        lost = lost | (link_length_m > table.range_m)
-    if np.any(table.cut):
-        lost = lost | table.cut
-    delay_ms = table.latency_ms + table.jitter_ms * (2.0 * u_delay - 1.0)
-    return LinkDraw(delivered=~lost, delay_s=np.maximum(delay_ms, 0.0) / 1000.0, in_bad_state=bad)
+    u_state = rng.random(shape) if np.any(table.burst) else np.zeros(shape)
+    f8, b1 = np.float64, np.bool_
+    state_shape, (u_s, bad_in, burst, good_to_bad, bad_to_good) = _flat(
+        [u_state, in_bad_state, table.burst, table.good_to_bad, table.bad_to_good],
+        [f8, b1, b1, f8, f8],
+    )
+    bad = _state_rows(u_s, bad_in, burst, good_to_bad, bad_to_good).reshape(state_shape)
+    length = 0.0 if link_length_m is None else link_length_m
+    range_m = math.inf if table.range_m is None else float(table.range_m)
+    fate_shape, fate_rows = _flat(
+        [
+            u_loss,
+            u_delay,
+            bad,
+            table.burst,
+            table.loss,
+            table.loss_in_good,
+            table.loss_in_bad,
+            table.cut,
+            length,
+            table.latency_ms,
+            table.jitter_ms,
+        ],
+        [f8, f8, b1, b1, f8, f8, f8, b1, f8, f8, f8],
+    )
+    delivered, delay_s = _delivery_rows(*fate_rows[:9], range_m, *fate_rows[9:])
+    return LinkDraw(
+        delivered=delivered.reshape(fate_shape),
+        delay_s=delay_s.reshape(fate_shape),
+        in_bad_state=bad,
+    )
