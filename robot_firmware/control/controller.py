@@ -27,10 +27,11 @@ Sonar echoes that fall on a live peer whose position is known from the radio are
 robot-robot term, so a peer is not repelled twice; echoes on a stopped peer are kept, since its
 position is only where it was last heard to coast to.
 
-The tick is compiled (numba): `control_robot` runs it for one robot from the compiled forms of
-each equation (kinematics, estimation, formation, apf, fuzzy, pid), and `control_step` runs it
-over every robot of a batch, on every core when the batch is large (`prange`).  The same
-kernel steers one robot in the firmware and B x N robots in the batch simulator.
+The tick is compiled (numba): `control_robots` runs it for a range of robots (`control_robot`
+for one) from the compiled forms of each equation (kinematics, estimation, formation, apf,
+fuzzy, pid), and `control_step` runs it over every robot of a batch, on every core when the
+batch is large (`prange`).  The same kernel steers one robot in the firmware and B x N robots
+in the batch simulator (services/sim/ticks.py calls `control_robots` for all of them at once).
 tests/control/oracle.py states the same tick in numpy; the kernels are tested against it.
 """
 
@@ -320,8 +321,9 @@ def sonar_beam_points(
 
 
 @njit(cache=True)
-def control_robot(
-    i: int,
+def control_robots(
+    first: int,
+    stop: int,
     k: ControlConstants,
     t_s: float,
     sonar_fresh: bool,
@@ -336,7 +338,8 @@ def control_robot(
     scratch_pose: FloatArray,
     origin: FloatArray,
 ) -> None:
-    """One tick of robot (row) i: levels 2-4, writing row i of every output array.
+    """One tick of robots (rows) first .. stop - 1: levels 2-4, writing their rows of every
+    output array (the arrays are unpacked once for all of them).
 
     scratch_ok (R, P) and scratch_pose (R, P, 3) hold the peers seen this tick; origin is a
     zero pose, the leader's while none is heard.
@@ -360,195 +363,224 @@ def control_robot(
      desired, desired_rate, delta_k, kp, ki, kd, repulsion) = out_f  # fmt: skip
     previous_counts_out, localised, saturated, started, echo_valid, active_out = out_b
 
-    # Level 2: odometry (eq. 11) and the positioning fix.
-    odometry(
-        pose_in[i], rate_in[i], previous_counts[i], counts[i], k.dt_s, k.metres_per_count,
-        k.wheel_base_m, k.rate_tau_s, pose[i], rate[i],
-    )  # fmt: skip
-    previous_counts_out[i, :] = counts[i]
-    localised[i] = fuse_fix(pose[i], localised_in[i], fix_pose[i], fix_valid[i], k.fix_gain)
-    x = pose[i, 0]
-    y = pose[i, 1]
-    theta = pose[i, 2]
+    for i in range(first, stop):
+        # Level 2: odometry (eq. 11) and the positioning fix.
+        odometry(
+            pose_in[i], rate_in[i], previous_counts[i], counts[i], k.dt_s, k.metres_per_count,
+            k.wheel_base_m, k.rate_tau_s, pose[i], rate[i],
+        )  # fmt: skip
+        previous_counts_out[i, :] = counts[i]
+        localised[i] = fuse_fix(pose[i], localised_in[i], fix_pose[i], fix_valid[i], k.fix_gain)
+        x = pose[i, 0]
+        y = pose[i, 1]
+        theta = pose[i, 2]
 
-    # Level 3: peers extrapolated to now, the leader, and the desired pose.
-    peers = peer_stamp.shape[1]
-    peer_ok = scratch_ok[i]
-    peer_pose = scratch_pose[i]
-    leader = -1
-    for j in range(peers):
-        age_s = t_s - peer_stamp[i, j]
-        peer_ok[j] = peer_valid[i, j] and age_s <= k.peer_timeout_s
-        lead_time_s = max(age_s, 0.0) if peer_ok[j] else 0.0
-        for a in range(3):
-            peer_pose[j, a] = peer_pose_in[i, j, a] + peer_rate[i, j, a] * lead_time_s
-        if leader < 0 and peer_ok[j] and peer_is_leader[i, j]:
-            leader = j
-    if is_leader[i]:
-        desired[i, :] = reference_pose[i]
-        desired_rate[i, :] = reference_rate[i]
-    else:
-        # No leader heard: the slot of a leader at the origin (the robot stays inactive).
-        leader_pose = peer_pose[leader] if leader >= 0 else origin
-        leader_rate = peer_rate[i, leader] if leader >= 0 else origin
-        slot_reference(
-            leader_pose, leader_rate, pose[i], slot_distance[i], slot_angle[i], desired[i],
-            desired_rate[i],
-        )  # fmt: skip
-
-    # Level 3: APF (eq. 25) from peers (radio) and from sonar echoes not explained by a peer.
-    # Sources that do not repel (pair_force 0) are skipped: they would add exactly nothing.
-    force_x = 0.0
-    force_y = 0.0
-    for j in range(peers):
-        if not peer_ok[j]:
-            continue
-        dx = x - peer_pose[j, 0]
-        dy = y - peer_pose[j, 1]
-        centre_gap = math.hypot(dx, dy)
-        reach = max(centre_gap, 1e-9)
-        magnitude = pair_force(
-            centre_gap - 2.0 * k.body_radius_m, peer_ok[j], k.robot_gain, k.influence_m,
-            k.min_gap_m,
-        )  # fmt: skip
-        force_x += magnitude * (dx / reach)
-        force_y += magnitude * (dy / reach)
-    beams = k.beam_angles_rad.shape[0]
-    if sonar_fresh:
-        near_peer_m = k.body_radius_m + k.sonar_peer_margin_m
-        for s in range(beams):
-            gap = sonar_range[i, s]
-            echo = math.isfinite(gap) and gap <= k.influence_m
-            px, py = beam_point(
-                x, y, theta, k.beam_angles_rad[s], gap if echo else 0.0, k.body_radius_m
-            )
-            echo_points[i, s, 0] = px
-            echo_points[i, s, 1] = py
-            explained = False
-            for j in range(peers):
-                if echo and peer_ok[j] and not peer_stopped[i, j] and not explained:
-                    explained = math.hypot(px - peer_pose[j, 0], py - peer_pose[j, 1]) < near_peer_m
-            echo_valid[i, s] = echo and not explained
-    else:
-        echo_points[i, :, :] = echo_in[i]
-        echo_valid[i, :] = echo_valid_in[i]
-    echo_x = 0.0
-    echo_y = 0.0
-    for s in range(beams):
-        if not echo_valid[i, s]:
-            continue
-        dx = x - echo_points[i, s, 0]
-        dy = y - echo_points[i, s, 1]
-        distance = math.hypot(dx, dy)
-        reach = max(distance, 1e-9)
-        magnitude = pair_force(
-            distance - k.body_radius_m, echo_valid[i, s], k.obstacle_gain, k.influence_m,
-            k.min_gap_m,
-        )  # fmt: skip
-        echo_x += magnitude * (dx / reach)
-        echo_y += magnitude * (dy / reach)
-
-    # Level 3: the tangential part round each robot that repels (apf.py, `circulation`): round
-    # a stopped one to the side chosen when it began to repel, where the goal (the way the
-    # reference moves plus its lead over the robot, closed in one hold time constant) and the
-    # other sources' push lean; round a live one anticlockwise.
-    goal_x = desired_rate[i, 0] + (desired[i, 0] - x) / k.hold_tau_s
-    goal_y = desired_rate[i, 1] + (desired[i, 1] - y) / k.hold_tau_s
-    turn_x = 0.0
-    turn_y = 0.0
-    for j in range(peers):
-        side_out[i, j] = 0.0
-        if not peer_ok[j]:
-            continue
-        dx = x - peer_pose[j, 0]
-        dy = y - peer_pose[j, 1]
-        centre_gap = math.hypot(dx, dy)
-        reach = max(centre_gap, 1e-9)
-        magnitude = pair_force(
-            centre_gap - 2.0 * k.body_radius_m, peer_ok[j], k.robot_gain, k.influence_m,
-            k.min_gap_m,
-        )  # fmt: skip
-        if magnitude == 0.0:
-            continue
-        ux = dx / reach
-        uy = dy / reach
-        side = 1.0
-        if peer_stopped[i, j]:
-            side = side_in[i, j]
-            if side == 0.0:
-                lean_x = goal_x + force_x + echo_x - magnitude * ux
-                lean_y = goal_y + force_y + echo_y - magnitude * uy
-                side = circulation_side(ux, uy, lean_x, lean_y)
-            side_out[i, j] = side
-        tangent_x, tangent_y = circulation(ux, uy, side * k.circulation_ratio * magnitude)
-        turn_x += tangent_x
-        turn_y += tangent_y
-    rx, ry = clip_vector(force_x + echo_x, force_y + echo_y, k.max_repulsion_mps)
-    tx, ty = clip_vector(turn_x, turn_y, k.circulation_ratio * k.max_repulsion_mps)
-    rx += tx
-    ry += ty
-    repulsion[i, 0] = rx
-    repulsion[i, 1] = ry
-    avoiding = rx != 0.0 or ry != 0.0
-    leak_tau_s = k.hold_tau_s if avoiding else k.release_tau_s
-    for a in range(2):
-        offset_rate = repulsion[i, a] - offset_in[i, a] / leak_tau_s
-        offset[i, a] = offset_in[i, a] + offset_rate * k.dt_s
-        desired[i, a] += offset[i, a]
-        desired_rate[i, a] += offset_rate
-    # Level 3: the desired point stays clear of every robot that repels (apf.py, `keep_clear`).
-    for j in range(peers):
-        if not peer_ok[j]:
-            continue
-        dx = x - peer_pose[j, 0]
-        dy = y - peer_pose[j, 1]
-        centre_gap = math.hypot(dx, dy)
-        if centre_gap - 2.0 * k.body_radius_m > k.influence_m:
-            continue
-        reach = max(centre_gap, 1e-9)
-        ux = dx / reach
-        uy = dy / reach
-        push_m, inward_mps = keep_clear(
-            desired[i, 0] - peer_pose[j, 0], desired[i, 1] - peer_pose[j, 1],
-            desired_rate[i, 0], desired_rate[i, 1], ux, uy, 2.0 * k.body_radius_m + k.clearance_m,
-        )  # fmt: skip
-        offset[i, 0] += push_m * ux
-        offset[i, 1] += push_m * uy
-        desired[i, 0] += push_m * ux
-        desired[i, 1] += push_m * uy
-        desired_rate[i, 0] -= inward_mps * ux
-        desired_rate[i, 1] -= inward_mps * uy
-
-    # Level 4: fuzzy-scheduled gains (Table 2, eqs. 6-7) and the redundant PID law (eq. 14).
-    axis_error(pose[i], desired[i], error[i])
-    axis_error_rate(
-        error[i], previous_error[i], rate_prev[i], started_in[i], k.dt_s, k.derivative_tau_s,
-        error_rate[i],
-    )  # fmt: skip
-    g = k.axis
-    for a in range(3):
-        if k.fuzzy_enabled:
-            delta_k[i, a] = infer_one(
-                error_centres[i], rate_centres[i], error_count[i], rate_count[i], rule_outputs[i],
-                error[i, a] / g[AXIS_ERROR_SCALE, a], error_rate[i, a] / g[AXIS_RATE_SCALE, a],
-            )  # fmt: skip
+        # Level 3: peers extrapolated to now, the leader, and the desired pose.
+        peers = peer_stamp.shape[1]
+        peer_ok = scratch_ok[i]
+        peer_pose = scratch_pose[i]
+        leader = -1
+        for j in range(peers):
+            age_s = t_s - peer_stamp[i, j]
+            peer_ok[j] = peer_valid[i, j] and age_s <= k.peer_timeout_s
+            lead_time_s = max(age_s, 0.0) if peer_ok[j] else 0.0
+            for a in range(3):
+                peer_pose[j, a] = peer_pose_in[i, j, a] + peer_rate[i, j, a] * lead_time_s
+            if leader < 0 and peer_ok[j] and peer_is_leader[i, j]:
+                leader = j
+        if is_leader[i]:
+            desired[i, :] = reference_pose[i]
+            desired_rate[i, :] = reference_rate[i]
         else:
-            delta_k[i, a] = 0.0
-        kp[i, a] = g[AXIS_KP, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
-        ki[i, a] = g[AXIS_KI, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
-        kd[i, a] = g[AXIS_KD, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
-    active = localised[i] and (is_leader[i] or leader >= 0)
-    active_out[i] = active
-    saturated[i] = pid_law(
-        integral_in[i], saturated_in[i], error[i], error_rate[i], desired_rate[i], theta,
-        kp[i], ki[i], kd[i], active and not avoiding, k.dt_s, g[AXIS_INTEGRAL_LIMIT],
-        k.wheel_base_m, k.wheel_radius_m, k.max_wheel_radps, integral[i], wheel[i],
+            # No leader heard: the slot of a leader at the origin (the robot stays inactive).
+            leader_pose = peer_pose[leader] if leader >= 0 else origin
+            leader_rate = peer_rate[i, leader] if leader >= 0 else origin
+            slot_reference(
+                leader_pose, leader_rate, pose[i], slot_distance[i], slot_angle[i], desired[i],
+                desired_rate[i],
+            )  # fmt: skip
+
+        # Level 3: APF (eq. 25) from peers (radio) and from sonar echoes not explained by a peer.
+        # Sources that do not repel (pair_force 0) are skipped: they would add exactly nothing.
+        force_x = 0.0
+        force_y = 0.0
+        for j in range(peers):
+            if not peer_ok[j]:
+                continue
+            dx = x - peer_pose[j, 0]
+            dy = y - peer_pose[j, 1]
+            centre_gap = math.hypot(dx, dy)
+            reach = max(centre_gap, 1e-9)
+            magnitude = pair_force(
+                centre_gap - 2.0 * k.body_radius_m, peer_ok[j], k.robot_gain, k.influence_m,
+                k.min_gap_m,
+            )  # fmt: skip
+            force_x += magnitude * (dx / reach)
+            force_y += magnitude * (dy / reach)
+        beams = k.beam_angles_rad.shape[0]
+        if sonar_fresh:
+            near_peer_m = k.body_radius_m + k.sonar_peer_margin_m
+            for s in range(beams):
+                gap = sonar_range[i, s]
+                echo = math.isfinite(gap) and gap <= k.influence_m
+                px, py = beam_point(
+                    x, y, theta, k.beam_angles_rad[s], gap if echo else 0.0, k.body_radius_m
+                )
+                echo_points[i, s, 0] = px
+                echo_points[i, s, 1] = py
+                explained = False
+                for j in range(peers):
+                    if echo and peer_ok[j] and not peer_stopped[i, j] and not explained:
+                        explained = (
+                            math.hypot(px - peer_pose[j, 0], py - peer_pose[j, 1]) < near_peer_m
+                        )
+                echo_valid[i, s] = echo and not explained
+        else:
+            echo_points[i, :, :] = echo_in[i]
+            echo_valid[i, :] = echo_valid_in[i]
+        echo_x = 0.0
+        echo_y = 0.0
+        for s in range(beams):
+            if not echo_valid[i, s]:
+                continue
+            dx = x - echo_points[i, s, 0]
+            dy = y - echo_points[i, s, 1]
+            distance = math.hypot(dx, dy)
+            reach = max(distance, 1e-9)
+            magnitude = pair_force(
+                distance - k.body_radius_m, echo_valid[i, s], k.obstacle_gain, k.influence_m,
+                k.min_gap_m,
+            )  # fmt: skip
+            echo_x += magnitude * (dx / reach)
+            echo_y += magnitude * (dy / reach)
+
+        # Level 3: the tangential part round each robot that repels (apf.py, `circulation`): round
+        # a stopped one to the side chosen when it began to repel, where the goal (the way the
+        # reference moves plus its lead over the robot, closed in one hold time constant) and the
+        # other sources' push lean; round a live one anticlockwise.
+        goal_x = desired_rate[i, 0] + (desired[i, 0] - x) / k.hold_tau_s
+        goal_y = desired_rate[i, 1] + (desired[i, 1] - y) / k.hold_tau_s
+        turn_x = 0.0
+        turn_y = 0.0
+        for j in range(peers):
+            side_out[i, j] = 0.0
+            if not peer_ok[j]:
+                continue
+            dx = x - peer_pose[j, 0]
+            dy = y - peer_pose[j, 1]
+            centre_gap = math.hypot(dx, dy)
+            reach = max(centre_gap, 1e-9)
+            magnitude = pair_force(
+                centre_gap - 2.0 * k.body_radius_m, peer_ok[j], k.robot_gain, k.influence_m,
+                k.min_gap_m,
+            )  # fmt: skip
+            if magnitude == 0.0:
+                continue
+            ux = dx / reach
+            uy = dy / reach
+            side = 1.0
+            if peer_stopped[i, j]:
+                side = side_in[i, j]
+                if side == 0.0:
+                    lean_x = goal_x + force_x + echo_x - magnitude * ux
+                    lean_y = goal_y + force_y + echo_y - magnitude * uy
+                    side = circulation_side(ux, uy, lean_x, lean_y)
+                side_out[i, j] = side
+            tangent_x, tangent_y = circulation(ux, uy, side * k.circulation_ratio * magnitude)
+            turn_x += tangent_x
+            turn_y += tangent_y
+        rx, ry = clip_vector(force_x + echo_x, force_y + echo_y, k.max_repulsion_mps)
+        tx, ty = clip_vector(turn_x, turn_y, k.circulation_ratio * k.max_repulsion_mps)
+        rx += tx
+        ry += ty
+        repulsion[i, 0] = rx
+        repulsion[i, 1] = ry
+        avoiding = rx != 0.0 or ry != 0.0
+        leak_tau_s = k.hold_tau_s if avoiding else k.release_tau_s
+        for a in range(2):
+            offset_rate = repulsion[i, a] - offset_in[i, a] / leak_tau_s
+            offset[i, a] = offset_in[i, a] + offset_rate * k.dt_s
+            desired[i, a] += offset[i, a]
+            desired_rate[i, a] += offset_rate
+        # Level 3: the desired point stays clear of every robot that repels (apf.py, `keep_clear`).
+        for j in range(peers):
+            if not peer_ok[j]:
+                continue
+            dx = x - peer_pose[j, 0]
+            dy = y - peer_pose[j, 1]
+            centre_gap = math.hypot(dx, dy)
+            if centre_gap - 2.0 * k.body_radius_m > k.influence_m:
+                continue
+            reach = max(centre_gap, 1e-9)
+            ux = dx / reach
+            uy = dy / reach
+            push_m, inward_mps = keep_clear(
+                desired[i, 0] - peer_pose[j, 0], desired[i, 1] - peer_pose[j, 1],
+                desired_rate[i, 0], desired_rate[i, 1], ux, uy,
+                2.0 * k.body_radius_m + k.clearance_m,
+            )  # fmt: skip
+            offset[i, 0] += push_m * ux
+            offset[i, 1] += push_m * uy
+            desired[i, 0] += push_m * ux
+            desired[i, 1] += push_m * uy
+            desired_rate[i, 0] -= inward_mps * ux
+            desired_rate[i, 1] -= inward_mps * uy
+
+        # Level 4: fuzzy-scheduled gains (Table 2, eqs. 6-7) and the redundant PID law (eq. 14).
+        axis_error(pose[i], desired[i], error[i])
+        axis_error_rate(
+            error[i], previous_error[i], rate_prev[i], started_in[i], k.dt_s, k.derivative_tau_s,
+            error_rate[i],
+        )  # fmt: skip
+        g = k.axis
+        for a in range(3):
+            if k.fuzzy_enabled:
+                delta_k[i, a] = infer_one(
+                    error_centres[i], rate_centres[i], error_count[i], rate_count[i],
+                    rule_outputs[i], error[i, a] / g[AXIS_ERROR_SCALE, a],
+                    error_rate[i, a] / g[AXIS_RATE_SCALE, a],
+                )  # fmt: skip
+            else:
+                delta_k[i, a] = 0.0
+            kp[i, a] = g[AXIS_KP, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
+            ki[i, a] = g[AXIS_KI, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
+            kd[i, a] = g[AXIS_KD, a] * (1.0 + g[AXIS_ETA, a] * delta_k[i, a])
+        active = localised[i] and (is_leader[i] or leader >= 0)
+        active_out[i] = active
+        saturated[i] = pid_law(
+            integral_in[i], saturated_in[i], error[i], error_rate[i], desired_rate[i], theta,
+            kp[i], ki[i], kd[i], active and not avoiding, k.dt_s, g[AXIS_INTEGRAL_LIMIT],
+            k.wheel_base_m, k.wheel_radius_m, k.max_wheel_radps, integral[i], wheel[i],
+        )  # fmt: skip
+        started[i] = True
+        for w in range(4):
+            if not active:
+                wheel[i, w] = 0.0
+            duty[i, w] = min(max(wheel[i, w] / k.no_load_radps, -1.0), 1.0)
+
+
+@njit(cache=True)
+def control_robot(
+    i: int,
+    k: ControlConstants,
+    t_s: float,
+    sonar_fresh: bool,
+    state_f: tuple,
+    state_b: tuple,
+    inputs_f: tuple,
+    inputs_b: tuple,
+    rules: tuple,
+    out_f: tuple,
+    out_b: tuple,
+    scratch_ok: BoolArray,
+    scratch_pose: FloatArray,
+    origin: FloatArray,
+) -> None:
+    """One tick of robot (row) i (`control_robots` for that row alone)."""
+    control_robots(
+        i, i + 1, k, t_s, sonar_fresh, state_f, state_b, inputs_f, inputs_b, rules, out_f, out_b,
+        scratch_ok, scratch_pose, origin,
     )  # fmt: skip
-    started[i] = True
-    for w in range(4):
-        if not active:
-            wheel[i, w] = 0.0
-        duty[i, w] = min(max(wheel[i, w] / k.no_load_radps, -1.0), 1.0)
 
 
 def _make_control_rows(parallel: bool):  # type: ignore[no-untyped-def]
