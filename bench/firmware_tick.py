@@ -7,20 +7,33 @@ is measured too: the control step (levels 2-4) and the bus accesses (reads and w
 the drivers, levels 1 and 5) are timed inside the tick; the rest is the firmware's own Python
 (trajectory, inputs, frame encoding).  Median over repetitions; machine and date printed.
 
+A robot process runs the kernels compiled ahead of time (SWARM_KERNELS=aot, no numba in the
+process: robot_firmware/control/kernels.py).  The control steps of the leader's measured ticks
+are recorded and replayed in a child process of that kind, next to the JIT on the same steps in
+this one; the child also reports what importing the robot process's modules costs in memory
+(VmRSS: ru_maxrss would count the parent's pages from before the exec), next to a child
+with the JIT.
+
     .venv/bin/python bench/firmware_tick.py [--ticks 1000] [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import pickle
 import statistics
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from machine import machine_lines
-from oracle_paths import PATHS, control_path
+from oracle_paths import PATHS
 
 import robot_firmware.firmware as firmware_module
 from robot_firmware.net.frames import key_from_secret
@@ -28,6 +41,58 @@ from services.sim.firmware_swarm import FirmwareSwarm
 from swarm_config.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+@contextlib.contextmanager
+def control_path(path: str) -> Iterator[None]:
+    """Within the block the firmware steers with `path` ('compiled' or the numpy 'oracle')."""
+    from tests.control import oracle
+
+    saved = firmware_module.control_step
+    if path == "oracle":
+        firmware_module.control_step = oracle.control_step  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        firmware_module.control_step = saved
+
+
+REPLAY = """
+import pickle, statistics, sys, time
+import robot_firmware.runtime
+from robot_firmware.control import kernels
+from robot_firmware.control.controller import control_step
+status = open("/proc/self/status").read()
+imports_mib = int(status.split("VmRSS:")[1].split()[0]) / 1024
+steps = pickle.loads(sys.stdin.buffer.read())
+spent = []
+for _ in range(3):
+    for args in steps:
+        start = time.perf_counter()
+        control_step(*args)
+        spent.append(time.perf_counter() - start)
+print(kernels.MODE, "numba" in sys.modules, imports_mib, statistics.median(spent) * 1e6)
+"""
+
+
+def _replay(steps: list[tuple[Any, ...]], mode: str) -> dict[str, float]:
+    """Median control step (us) over `steps` and RSS after the imports (MiB), in a child."""
+    ran = subprocess.run(
+        [sys.executable, "-c", REPLAY],
+        input=pickle.dumps(steps),
+        capture_output=True,
+        env={**os.environ, "SWARM_KERNELS": mode},
+        cwd=ROOT,
+        check=True,
+    )
+    got_mode, numba_loaded, imports_mib, step_us = ran.stdout.decode().split()
+    if got_mode != mode:
+        raise SystemExit(f"wanted {mode} kernels, the child ran {got_mode}: {ran.stderr.decode()}")
+    return {
+        "step_us": float(step_us),
+        "imports_mib": float(imports_mib),
+        "numba_loaded": float(numba_loaded == "True"),
+    }
 
 
 def _measure(ticks: int, path: str) -> dict[str, float]:
@@ -43,7 +108,8 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
         spent = {"control_step": 0.0, "bus": 0.0, "in_leader": 0.0}
         original_tick = firmware.control_tick
         original_step = firmware_module.control_step
-        original_read, original_write = bus.read, bus.write
+        original_read, original_write = bus.read_word, bus.write_word
+        recorded: list[tuple[Any, ...]] = []
 
         def timed_tick(now_ns: int) -> Any:
             spent["in_leader"] = 1.0
@@ -54,12 +120,14 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
             return report
 
         def timed_step(*args: Any) -> Any:
+            if spent["in_leader"]:
+                recorded.append(args)
             start = time.perf_counter()
             result = original_step(*args)
             spent["control_step"] += (time.perf_counter() - start) * spent["in_leader"]
             return result
 
-        def timed_read(address: int) -> Any:
+        def timed_read(address: int) -> Any:  # the drivers' word accesses (RegisterPort)
             start = time.perf_counter()
             result = original_read(address)
             spent["bus"] += time.perf_counter() - start
@@ -79,15 +147,33 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
         writes = (bus.write_count - writes0) / ticks
         # The breakdown, in a second pass (the timers themselves cost a little).
         firmware_module.control_step = timed_step  # type: ignore[assignment]
-        bus.read, bus.write = timed_read, timed_write  # type: ignore[method-assign]
+        bus.read_word, bus.write_word = timed_read, timed_write  # type: ignore[method-assign]
         timed_ticks = tick_s[:]
         tick_s.clear()
         for _ in range(ticks):
             swarm.step()
         breakdown_total = sum(tick_s)
         firmware_module.control_step = original_step
-        bus.read, bus.write = original_read, original_write  # type: ignore[method-assign]
+        bus.read_word, bus.write_word = original_read, original_write  # type: ignore[method-assign]
+    replayed = {}
+    if path == "compiled":
+        # The same steps, first here (JIT), then in a robot process's kind of child (aot).
+        jit_spent = []
+        for args in recorded:
+            start = time.perf_counter()
+            original_step(*args)
+            jit_spent.append(time.perf_counter() - start)
+        aot = _replay(recorded, "aot")
+        jit_child = _replay(recorded[:1], "jit")
+        replayed = {
+            "replay_jit_us": float(np.median(jit_spent)) * 1e6,
+            "replay_aot_us": aot["step_us"],
+            "imports_aot_mib": aot["imports_mib"],
+            "imports_jit_mib": jit_child["imports_mib"],
+            "numba_in_aot": aot["numba_loaded"],
+        }
     return {
+        **replayed,
         "tick_median_us": float(np.median(timed_ticks)) * 1e6,
         "tick_p99_us": float(np.percentile(timed_ticks, 99)) * 1e6,
         "control_step_us": spent["control_step"] / ticks * 1e6,
@@ -128,6 +214,22 @@ def main() -> None:
     )
     for label, key in labels:
         print(f"{label:34}{median['compiled'][key]:>10.1f}{median['oracle'][key]:>10.1f}")
+    compiled = median["compiled"]
+    print()
+    print("# the leader's control steps replayed: numba's JIT here, the ahead-of-time module in a")
+    print("# child process as a robot runs it (SWARM_KERNELS=aot)")
+    print(f"{'':34}{'jit':>10}{'aot':>10}")
+    print(
+        f"{'control step, median (us)':34}{compiled['replay_jit_us']:>10.1f}"
+        f"{compiled['replay_aot_us']:>10.1f}"
+    )
+    print(
+        f"{'robot modules imported, RSS MiB':34}{compiled['imports_jit_mib']:>10.1f}"
+        f"{compiled['imports_aot_mib']:>10.1f}"
+    )
+    print(f"numba imported by the aot child: {'yes' if compiled['numba_in_aot'] else 'no'}")
+    with_aot_us = compiled["tick_median_us"] - compiled["replay_jit_us"] + compiled["replay_aot_us"]
+    print(f"control_tick median with the aot step (estimate): {with_aot_us:.1f} us")
     print()
     print("goal: control_tick median at most 100 us (compiled); budget at 100 Hz 10000 us")
 

@@ -16,6 +16,7 @@ Frequencies are whole hertz, rounded down.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 from robot_firmware.fpga.registers import Access, Field, Peripheral, Register
 
@@ -27,7 +28,8 @@ PLL_MAX_HZ = 400_000_000
 
 @dataclass(frozen=True)
 class ClockSetting:
-    """One configuration of the PLL and the two dividers."""
+    """One configuration of the PLL and the two dividers (its frequencies computed once: the
+    QEP models ask for C0 at every fabric tick)."""
 
     mult: int
     div: int
@@ -40,15 +42,15 @@ class ClockSetting:
             return False
         return PLL_MIN_HZ <= self.pll_hz <= PLL_MAX_HZ
 
-    @property
+    @cached_property
     def pll_hz(self) -> int:
         return REF_CLOCK_HZ * self.mult // self.div if self.div else 0
 
-    @property
+    @cached_property
     def c0_hz(self) -> int:
         return self.pll_hz // self.c0_div if self.c0_div else 0
 
-    @property
+    @cached_property
     def c1_hz(self) -> int:
         return self.pll_hz // self.c1_div if self.c1_div else 0
 
