@@ -42,17 +42,17 @@ from swarm_config.faults import PROCESS_ROLES, ScheduledFault, fault_subjects
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.sensors import PositioningParams, SonarParams
-from swarm_config.settings import SettingsError, describe_validation_error, read_yaml
+from swarm_config.settings import (
+    DEFAULT_SCENARIO_PATH as DEFAULT_SCENARIO_PATH,  # re-exported: importers know it from here
+)
+from swarm_config.settings import (
+    ScenarioError,
+    SettingsError,
+    describe_validation_error,
+    read_yaml,
+)
 
 FloatArray = NDArray[np.float64]
-
-
-DEFAULT_SCENARIO_PATH = Path("configs/scenarios/paper.yaml")
-"""The paper's experiment, relative to the repository root: what runs when no scenario is given."""
-
-
-class ScenarioError(Exception):
-    """A scenario file that cannot be used; the message is meant for the user."""
 
 
 class _Strict(BaseModel):

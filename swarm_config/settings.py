@@ -36,6 +36,16 @@ class SettingsError(ValueError):
     """Settings that cannot be used; the message names the field (and its variable)."""
 
 
+DEFAULT_SCENARIO_PATH = Path("configs/scenarios/paper.yaml")
+"""The paper's experiment, relative to the repository root: what runs when no scenario is given."""
+
+
+class ScenarioError(Exception):
+    """A scenario file that cannot be used; the message is meant for the user.  It lives here,
+    with the settings errors, so that a command that reports one need not load the scenario
+    models (and the control kernels behind them)."""
+
+
 def read_yaml(path: Path, what: str) -> object:
     """The data of a YAML (or JSON) file; SettingsError naming the file and the problem for
     anything else: unreadable, not UTF-8, not YAML, nested too deep, an impossible date."""

@@ -30,8 +30,12 @@ from swarm_config.credentials import (
     ProcessCredentials,
     read_credentials,
 )
-from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
-from swarm_config.settings import LayeredSettings, SettingsError
+from swarm_config.settings import (
+    DEFAULT_SCENARIO_PATH,
+    LayeredSettings,
+    ScenarioError,
+    SettingsError,
+)
 from swarm_config.tls import (
     DEFAULT_TLS_HOSTS,
     TLS_DIR_NAME,
@@ -64,6 +68,7 @@ MAX_SPEED_HELP = (
 
 def _cmd_sim(args: argparse.Namespace) -> int:
     from services.sim.run import simulate_scenario
+    from swarm_config.scenario import load_scenario
 
     scenario = load_scenario(Path(args.scenario))
     updates: dict[str, object] = {}
@@ -106,6 +111,7 @@ def _cmd_router(args: argparse.Namespace) -> int:
 
 
 def _cmd_world(args: argparse.Namespace) -> int:
+    from swarm_config.scenario import load_scenario
     from world.runtime import WorldConfig, WorldProcess
 
     given = {
@@ -170,6 +176,7 @@ def _cmd_credentials(args: argparse.Namespace) -> int:
         read_credential_set,
         write_credential_set,
     )
+    from swarm_config.scenario import load_scenario
 
     scenario = load_scenario(
         Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
@@ -285,6 +292,7 @@ def _check_across_hosts(args: argparse.Namespace) -> None:
 
 def _cmd_up(args: argparse.Namespace) -> int:
     from services.launcher.launcher import Launcher, LaunchPlan
+    from swarm_config.scenario import load_scenario
     from world.runtime import WorldConfig
 
     endpoint = f"{'tls' if args.tls else 'tcp'}/127.0.0.1:{args.port}"
@@ -683,9 +691,13 @@ def _cm(value: object) -> str:
     return f"{100.0 * float(value):.2f} cm"  # type: ignore[arg-type]
 
 
-def build_parser(robot_only: bool = False) -> argparse.ArgumentParser:
-    """The `swarm` parser; `robot_only` leaves out the subcommands whose modules a robot process
-    must not load (the tuner pulls in the batch simulator, the world and numba)."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The `swarm` parser.  Given the `command` about to run, and if it is one of the light
+    ones (those defined here and `fault`), it leaves out the subcommands whose modules cost
+    seconds to load (the tuner pulls in the batch simulator, the world and numba; the dashboard
+    and the scenario generator the scenario models and the control kernels), so that a robot
+    process or a `swarm status` starts at once.  `swarm`, `swarm --help` and an unknown command
+    get the whole parser."""
     parser = argparse.ArgumentParser(
         prog="swarm",
         description=(
@@ -994,15 +1006,17 @@ def build_parser(robot_only: bool = False) -> argparse.ArgumentParser:
     )
     router.add_argument("--config", metavar="FILE", help="json5 router config")
     router.set_defaults(handler=_cmd_router)
-    if robot_only:
-        return parser
 
     from services.cli.faults import add_fault_parser
+
+    add_fault_parser(sub, admin_query_options, _cmd_fault)
+    if command is not None and command in sub.choices:
+        return parser
+
     from services.dashboard.cli import add_dashboard_parsers
     from services.scenario.cli import add_scenario_parser
     from services.tuner.cli import add_tune_parser
 
-    add_fault_parser(sub, admin_query_options, _cmd_fault)
     add_dashboard_parsers(sub)
     add_tune_parser(sub)
     add_scenario_parser(sub)
@@ -1015,7 +1029,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     given = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(robot_only=given[:1] == ["robot"])
+    parser = build_parser(given[0] if given else None)
     args = parser.parse_args(given)
     if args.command is None:
         parser.print_help()

@@ -187,7 +187,7 @@ def test_call_with_other_types_runs_the_python_function() -> None:
 ROBOT_IMPORTS = """
 import sys
 import services.cli.main
-services.cli.main.build_parser(robot_only=True)
+services.cli.main.build_parser("robot")
 import robot_firmware.runtime
 from robot_firmware.control import kernels
 heavy = sorted({m.split(".")[0] for m in sys.modules} & {"numba", "llvmlite", "scipy", "world"})
