@@ -90,42 +90,69 @@ class AotKernel:
 
     def __init__(
         self, compiled: Callable[..., Any], spec: list[ArgSpec], py_func: Callable[..., Any]
-    ):
+    ) -> None:
         self.compiled = compiled
         self.spec = spec
         self.py_func = py_func
+        self.matches = type_check(spec)
         self.__doc__ = py_func.__doc__
         self.__name__ = py_func.__name__
         self.mismatches = 0
         """Calls that ran the Python function because an argument's type differed."""
 
     def __call__(self, *args: Any) -> Any:
-        if len(args) == len(self.spec) and all(map(_matches, args, self.spec)):
+        if self.matches(*args):
             return self.compiled(*args)
         self.mismatches += 1
         return self.py_func(*args)
 
 
-def _matches(value: Any, spec: ArgSpec) -> bool:
-    kind = spec[0]
-    if kind == "a":
-        return (
-            type(value) is np.ndarray
-            and value.dtype.str == spec[1]
-            and value.ndim == spec[2]
-            and value.flags.c_contiguous
-        )
-    if kind == "t":
-        return (
-            isinstance(value, tuple)
-            and len(value) == len(spec[1])
-            and all(map(_matches, value, spec[1]))
-        )
-    if kind == "b":
-        return isinstance(value, (bool, np.bool_))
-    if kind == "i":
-        return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    return isinstance(value, (float, int, np.floating, np.integer))
+def type_check(spec: list[ArgSpec]) -> Callable[..., bool]:
+    """A function of the arguments that is True when they have exactly the types of `spec`.
+
+    Written out as one expression (no loop, no recursion: it runs on every tick); an array is
+    checked for its dtype, its dimensions and C order, a tuple for its length and items."""
+    dtypes: dict[str, np.dtype[Any]] = {}
+    terms: list[str] = []
+
+    def check(value: str, item: ArgSpec) -> None:
+        kind = item[0]
+        if kind == "a":
+            dtypes.setdefault(item[1], np.dtype(item[1]))
+            name = f"_d{list(dtypes).index(item[1])}"
+            terms.append(
+                f"type({value}) is _ndarray and {value}.dtype == {name} and "
+                f"{value}.ndim == {item[2]} and {value}.flags.c_contiguous"
+            )
+        elif kind == "t":
+            terms.append(f"isinstance({value}, tuple) and len({value}) == {len(item[1])}")
+            for index, inner in enumerate(item[1]):
+                check(f"{value}[{index}]", inner)
+        elif kind == "b":
+            terms.append(f"isinstance({value}, _bools)")
+        elif kind == "i":
+            terms.append(f"isinstance({value}, _ints) and not isinstance({value}, bool)")
+        else:
+            terms.append(f"isinstance({value}, _numbers)")
+
+    names = [f"a{i}" for i in range(len(spec))]
+    for name, item in zip(names, spec, strict=True):
+        check(name, item)
+    body = " and ".join(f"({t})" for t in terms) or "True"
+    source = f"def matches(*args):\n    if len(args) != {len(spec)}:\n        return False\n"
+    if names:
+        source += f"    {', '.join(names)}, = args\n"
+    source += f"    return bool({body})\n"
+    scope: dict[str, Any] = {
+        "_ndarray": np.ndarray,
+        "_bools": (bool, np.bool_),
+        "_ints": (int, np.integer),
+        "_numbers": (float, int, np.floating, np.integer),
+        **{f"_d{i}": dtype for i, dtype in enumerate(dtypes.values())},
+    }
+    exec(source, scope)  # the source is made here, from the build's own type list
+    matches: Callable[..., bool] = scope["matches"]
+    return matches
 
 
 def _load_aot(hash_: str) -> tuple[Any, dict[str, Any]] | None:
