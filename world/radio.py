@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from swarm_config.radio import LinkProfile
 
@@ -163,11 +163,13 @@ def _delivery_rows(
     return delivered, delay_s
 
 
-def _flat(arrays: list[NDArray[Any]], dtypes: list[type]) -> tuple[tuple[int, ...], list[Any]]:
+def _flat(arrays: list[ArrayLike], dtypes: list[type]) -> tuple[tuple[int, ...], list[Any]]:
     """Broadcast `arrays` together; their shape and each one flat, contiguous, of its dtype."""
     full = np.broadcast_arrays(*arrays)
     shape = full[0].shape if full else ()
-    flat = [np.ascontiguousarray(a, dtype=d).reshape(-1) for a, d in zip(full, dtypes, strict=True)]
+    flat: list[Any] = [
+        np.ascontiguousarray(a, dtype=d).reshape(-1) for a, d in zip(full, dtypes, strict=True)
+    ]
     return shape, flat
 
 
@@ -208,7 +210,13 @@ def draw_links(
         ],
         [f8, f8, b1, b1, f8, f8, f8, b1, f8, f8, f8],
     )
-    delivered, delay_s = _delivery_rows(*fate_rows[:9], range_m, *fate_rows[9:])
+    u_l, u_d, bad_rows, burst_rows, loss, good, bad_loss, cut, length_rows, latency, jitter = (
+        fate_rows
+    )
+    delivered, delay_s = _delivery_rows(
+        u_l, u_d, bad_rows, burst_rows, loss, good, bad_loss, cut, length_rows, range_m, latency,
+        jitter,
+    )  # fmt: skip
     return LinkDraw(
         delivered=delivered.reshape(fate_shape),
         delay_s=delay_s.reshape(fate_shape),
