@@ -1,10 +1,13 @@
 """Throughput of the batch simulator on the paper scenario (not a test: prints a table).
 
-Simulated robot-seconds per wall-clock second for batch sizes B = 1, 100 and 1000, with the
-compiled kernels and with the numpy oracle (tests/control/oracle.py) in the same run, side by
-side with their ratio.  Each figure is the median of several repetitions, the two paths
-interleaved; compile time is excluded (one short warm-up run per path and batch size).  The
-machine and the date are printed with the table.
+Simulated robot-seconds per wall-clock second for batch sizes B = 1, 100 and 1000: the compiled
+tick loop (`services.sim.batch.run_batch`) next to its numpy oracle, the tick-by-tick loop of
+tests/world/oracle.py (`run_batch_oracle`, on the numpy control and body steps of
+tests/control/oracle.py), in the same run, with their ratio.  Each figure is the median of
+several repetitions, the two paths interleaved; compile time is excluded (one short warm-up run
+per path and batch size).  Next to the wall-clock figure, the compiled path's figure per CPU
+second of this process (`time.process_time`), which depends less on what else the machine runs.
+The machine and the date are printed with the table.
 
     .venv/bin/python bench/batch_throughput.py [--repeats 3] [--sim-seconds 5]
 """
@@ -13,22 +16,33 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-from machine import machine_lines
-from oracle_paths import PATHS, control_path
-
-from services.sim.batch import run_batch
-from swarm_config.scenario import Scenario, load_scenario
-
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from machine import machine_lines  # noqa: E402
+
+from services.sim.batch import BatchResult, run_batch  # noqa: E402
+from swarm_config.scenario import Scenario, load_scenario  # noqa: E402
+from tests.world.oracle import run_batch_oracle  # noqa: E402
+
+PATHS: dict[str, Callable[..., BatchResult]] = {
+    "compiled": run_batch,
+    "oracle": run_batch_oracle,
+}
 
 
-def _wall_s(scenario: Scenario, batch: int, sim_s: float) -> float:
-    start = time.perf_counter()
-    run_batch(scenario, batch_size=batch, duration_s=sim_s)
-    return time.perf_counter() - start
+def _seconds(path: str, scenario: Scenario, batch: int, sim_s: float) -> tuple[float, float]:
+    """Wall-clock and CPU seconds of one run."""
+    wall = time.perf_counter()
+    cpu = time.process_time()
+    PATHS[path](scenario, batch_size=batch, duration_s=sim_s)
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def main() -> None:
@@ -37,33 +51,51 @@ def main() -> None:
     parser.add_argument("--sim-seconds", type=float, default=5.0)
     parser.add_argument("--scenario", type=Path, default=ROOT / "configs/scenarios/paper.yaml")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 100, 1000])
+    parser.add_argument(
+        "--oracle-sim-seconds",
+        type=float,
+        default=None,
+        help="simulated seconds of the oracle's runs (default: --sim-seconds)",
+    )
     args = parser.parse_args()
+    if args.repeats < 1 or args.sim_seconds <= 0.0 or any(b < 1 for b in args.batches):
+        parser.error("--repeats, --sim-seconds and every batch size must be positive")
     scenario = load_scenario(args.scenario)
     robots = len(scenario.robots)
+    sim_s = {"compiled": args.sim_seconds, "oracle": args.oracle_sim_seconds or args.sim_seconds}
 
-    print("# batch simulator throughput: compiled kernels vs the numpy oracle")
+    print("# batch simulator throughput: compiled tick loop vs the numpy oracle")
     for line in machine_lines():
         print(line)
-    print(f"# scenario: {args.scenario.name} ({robots} robots), {args.sim_seconds} s simulated,")
+    print(
+        f"# scenario: {args.scenario.name} ({robots} robots), simulated s per run: "
+        f"compiled {sim_s['compiled']}, oracle {sim_s['oracle']}"
+    )
     print(f"# median of {args.repeats} runs per path, interleaved; 100 Hz control")
     print()
-    print(f"{'B':>6} {'compiled robot-s/s':>19} {'oracle robot-s/s':>17} {'ratio':>7}")
+    print(
+        f"{'B':>6} {'compiled robot-s/s':>19} {'per CPU s':>10} {'oracle robot-s/s':>17} "
+        f"{'ratio':>7}"
+    )
     for batch in args.batches:
         walls: dict[str, list[float]] = {path: [] for path in PATHS}
+        cpus: list[float] = []
         for path in PATHS:
-            with control_path(path):
-                _wall_s(scenario, batch, 0.1)  # compile / warm caches
+            _seconds(path, scenario, batch, 0.1)  # compile / warm caches
         for _ in range(args.repeats):
             for path in PATHS:
-                with control_path(path):
-                    walls[path].append(_wall_s(scenario, batch, args.sim_seconds))
+                wall, cpu = _seconds(path, scenario, batch, sim_s[path])
+                walls[path].append(wall)
+                if path == "compiled":
+                    cpus.append(cpu)
         rate = {
-            path: batch * robots * args.sim_seconds / statistics.median(walls[path])
-            for path in PATHS
+            path: batch * robots * sim_s[path] / statistics.median(walls[path]) for path in PATHS
         }
+        per_cpu = batch * robots * sim_s["compiled"] / statistics.median(cpus)
         print(
-            f"{batch:>6} {rate['compiled']:>19.0f} {rate['oracle']:>17.0f} "
-            f"{rate['compiled'] / rate['oracle']:>6.1f}x"
+            f"{batch:>6} {rate['compiled']:>19.0f} {per_cpu:>10.0f} {rate['oracle']:>17.0f} "
+            f"{rate['compiled'] / rate['oracle']:>6.1f}x",
+            flush=True,
         )
     print()
     print("goal: at least 10000 robot-s/s at B = 100 (compiled)")

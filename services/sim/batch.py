@@ -1,12 +1,18 @@
-"""Batch simulator: B runs of one scenario x N robots, stepped together in numpy.
+"""Batch simulator: B runs of one scenario x N robots, stepped together by compiled kernels.
 
 Each control tick (100 Hz by default) does what the swarm's processes do, in this order:
 deliver radio frames that are due, synthesise sensors from ground truth (encoders every tick,
-positioning fix and sonar at their own rates: `world.step.sense_world`), run every robot's
-`control_step` (the same function the firmware runs), record metrics, then take one world step
-(`world.step.step_world`, the same one the world process takes): the frames of the robots whose
-broadcast is due meet the radio medium, and the bodies move for one control period with the
-duties held (exact for a held duty; `physics_substeps` splits the period for comparison).
+positioning fix and sonar at their own rates), run every robot's control step (the kernel the
+firmware runs), record metrics (the accumulator's kernel), then take one world step: the frames
+of the robots whose broadcast is due meet the radio medium, and the bodies move for one control
+period with the duties held (exact for a held duty; `physics_substeps` splits the period for
+comparison).  The world process takes the same steps through `world.step.sense_world` and
+`step_world`, which run the same kernels.
+
+The ticks run inside one compiled loop (services/sim/ticks.py), a chunk of ticks per call, with
+the chunk's random numbers drawn beforehand in numpy from the same streams in the same order as
+tick by tick; tests/world/oracle.py states the same loop in numpy (`run_batch_oracle`) and the
+batch is tested against it.
 
 The B runs differ by their fuzzy schedulers (a batched rule base) and, unless
 `shared_noise=True`, by their noise.  Shared noise gives every run the same disturbances
@@ -15,33 +21,27 @@ The B runs differ by their fuzzy schedulers (a batched rule base) and, unless
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_firmware.control.controller import (
-    ControlInputs,
-    ControllerParams,
-    ControllerState,
-    RobotRole,
-    control_step,
-)
+from robot_firmware.control.controller import ControllerParams, ControllerState, RobotRole
 from robot_firmware.control.fuzzy import FuzzyRuleBase
+from robot_firmware.control.rows import rows_of
+from services.sim.ticks import run_ticks
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario, load_rule_base
-from world.metrics import FormationLayout, MetricsAccumulator
-from world.step import (
-    FrameFates,
-    WorldInputs,
-    WorldNoise,
-    WorldParams,
-    WorldState,
-    sense_world,
-    step_world,
-)
+from world.metrics import FormationLayout, MetricsAccumulator, metrics_constants
+from world.physics import body_constants, counts_per_radian
+from world.radio import LinkTable
+from world.sensors import fix_noise_std, sonar_constants
+from world.step import WorldNoise, WorldParams
 
 FloatArray = NDArray[np.float64]
+CHUNK_VALUES = 1 << 20
+"""About how many random numbers and trace values one call of the tick loop holds at most."""
 
 
 @dataclass
@@ -81,83 +81,21 @@ class BatchResult:
     radio_delivered: NDArray[np.int64]
 
 
-class BatchRadio:
-    """Delivers each robot's broadcast state to the others, as the world step decided.
+def ring_slots(profile: LinkProfile, broadcast_period_s: float) -> int:
+    """Frames each sender keeps in flight: enough for the longest delay, and two more."""
+    return int(np.ceil(profile.max_delay_s / broadcast_period_s)) + 2
 
-    Frames wait in a small per-sender ring until their arrival time; a receiver keeps the
-    newest state it has received from each peer (older frames arriving late are ignored).
-    """
 
-    def __init__(
-        self,
-        batch_shape: tuple[int, ...],
-        robot_count: int,
-        profile: LinkProfile,
-        broadcast_period_s: float,
-    ) -> None:
-        b, n = batch_shape, robot_count
-        self.slots = int(np.ceil(profile.max_delay_s / broadcast_period_s)) + 2
-        k = self.slots
-        self.payload = np.zeros((k,) + b + (n, 6))
-        self.stamp_s = np.full((k, n), -np.inf)
-        self.arrival_s = np.full((k,) + b + (n, n), np.inf)
-        self.pending = np.zeros((k,) + b + (n, n), dtype=bool)
-        self.next_slot = np.zeros(n, dtype=np.int64)
-        self.peer_state = np.zeros(b + (n, n, 6))  # receiver, sender
-        self.peer_stamp_s = np.full(b + (n, n), -np.inf)
-        self.sent = 0
-        self.delivered = np.zeros(b, dtype=np.int64)
-
-    def post(self, t_s: float, fates: FrameFates, state: FloatArray) -> None:
-        """The senders' `state` (..., N, 6) leaves at t_s; `fates` says which links carry it."""
-        senders = fates.senders
-        if senders.size == 0:
-            return
-        slot = self.next_slot[senders] % self.slots
-        self.next_slot[senders] += 1
-        self.payload[slot, ..., senders, :] = np.moveaxis(state[..., senders, :], -2, 0)
-        self.stamp_s[slot, senders] = t_s
-        links = self.arrival_s.shape[1:-2] + (senders.size, self.arrival_s.shape[-1])
-        arrival = t_s + np.broadcast_to(fates.delay_s, links)
-        self.arrival_s[slot, ..., senders, :] = np.moveaxis(arrival, -2, 0)
-        self.pending[slot, ..., senders, :] = np.moveaxis(
-            np.broadcast_to(fates.delivered, links), -2, 0
-        )
-        self.sent += int(senders.size)
-
-    def deliver(self, t_s: float) -> None:
-        """Move every frame due by t_s into the receivers' peer tables."""
-        due = self.pending & (self.arrival_s <= t_s)
-        if not due.any():
-            return
-        stamps = np.broadcast_to(
-            self.stamp_s[
-                (slice(None),)
-                + (None,) * (due.ndim - 3)
-                + (
-                    slice(None),
-                    None,
-                )
-            ],
-            due.shape,
-        )
-        candidate = np.where(due, stamps, -np.inf)  # (K, ..., tx, rx)
-        best = np.argmax(candidate, axis=0)
-        best_stamp = np.max(candidate, axis=0)  # (..., tx, rx)
-        newer = best_stamp > np.swapaxes(self.peer_stamp_s, -1, -2)
-        self.delivered += np.sum(due, axis=(0, -2, -1))
-        self.pending &= ~due
-        if not newer.any():
-            return
-        payload = np.take_along_axis(
-            self.payload[..., None, :],  # (K, ..., tx, 1, 6)
-            best[None, ..., None],
-            axis=0,
-        )[0]  # (..., tx, rx, 6)
-        table = np.swapaxes(self.peer_state, -2, -3)  # view (..., tx, rx, 6)
-        np.copyto(table, payload, where=newer[..., None])
-        stamp_view = np.swapaxes(self.peer_stamp_s, -1, -2)
-        np.copyto(stamp_view, best_stamp, where=newer)
+def link_constants(
+    profile: LinkProfile,
+) -> tuple[float, float, float, bool, float, float, float, float, float]:
+    """A uniform link profile as the tick loop takes it (`world.radio.link_delivery`)."""
+    t = LinkTable.from_profile(profile)
+    return (
+        float(t.latency_ms), float(t.jitter_ms), float(t.loss), bool(t.burst),
+        float(t.good_to_bad), float(t.bad_to_good), float(t.loss_in_good), float(t.loss_in_bad),
+        math.inf if t.range_m is None else float(t.range_m),
+    )  # fmt: skip
 
 
 def run_batch(
@@ -185,8 +123,7 @@ def run_batch(
     dt = params.control_period_s
     ticks = round((duration_s if duration_s is not None else scenario.duration_s) / dt)
 
-    names = scenario.robot_names
-    n = len(names)
+    n = len(scenario.robot_names)
     b = (batch_size,)
     noise = WorldNoise.spawn(
         np.random.default_rng(scenario.seed if seed is None else seed),
@@ -208,20 +145,6 @@ def run_batch(
     rule_count = np.broadcast_to(np.asarray(base.rule_count), b) * n
 
     trajectory = scenario.trajectory.build()
-    world = WorldState.at_rest(
-        np.broadcast_to(scenario.initial_poses(), b + (n, 3)).copy(), noise.batch_shape
-    )
-    state = ControllerState.initial(b + (n,), len(world_params.beam_angles_rad))
-    radio = BatchRadio(b, n, scenario.radio.link, 1.0 / scenario.radio.broadcast_rate_hz)
-    broadcast_every = max(1, round(1.0 / (scenario.radio.broadcast_rate_hz * dt)))
-    fix_every = max(1, round(1.0 / (world_params.positioning.rate_hz * dt)))
-    sonar_every = max(1, round(1.0 / (world_params.sonar.rate_hz * dt)))
-    sonar_gap = np.full(b + (n, len(world_params.beam_angles_rad)), np.inf)
-    fix_pose = np.zeros(b + (n, 3))
-    fix_valid = np.ones(b + (n,), dtype=bool)
-    no_fix = np.zeros(b + (n,), dtype=bool)
-    peer_is_leader = np.arange(n) == layout.leader_index
-    robot_index = np.arange(n)
     metrics = MetricsAccumulator(
         b,
         layout,
@@ -229,54 +152,54 @@ def run_batch(
         world_params.obstacle_radii_m,
         scenario.metrics_config(),
     )
+    loop = _TickLoop(scenario, params, world_params, noise, role, rules, metrics)
+    broadcast_every = max(1, round(1.0 / (scenario.radio.broadcast_rate_hz * dt)))
+    fix_every = max(1, round(1.0 / (world_params.positioning.rate_hz * dt)))
+    sonar_every = max(1, round(1.0 / (world_params.sonar.rate_hz * dt)))
+    schedule = (float(dt), broadcast_every, fix_every, sonar_every, physics_substeps)
+    burst = loop.link[3]
+    robots = np.arange(n)
+    noise_worlds = noise.batch_shape[0]
+    beams = len(world_params.beam_angles_rad)
+    per_tick = noise_worlds * n * (4 * physics_substeps + 3 + beams + 3 * n)
+    per_tick += 6 * batch_size * n * 3 if record_trace else 0
+    chunk = max(1, CHUNK_VALUES // per_tick)
     trace = Trace() if record_trace else None
-
-    for k in range(ticks):
+    sent = 0
+    for first in range(0, ticks, chunk):
+        count = min(chunk, ticks - first)
+        k = np.arange(first, first + count)
         t = k * dt
-        radio.deliver(t)
-        fix_due = k % fix_every == 0
-        sonar_due = k % sonar_every == 0
-        seen = sense_world(world, world_params, noise, fix_due, sonar_due)
-        if seen.fix_pose is not None:
-            fix_pose = seen.fix_pose
-        if seen.sonar_gap_m is not None:
-            sonar_gap = seen.sonar_gap_m
         reference_pose, reference_rate = trajectory.evaluate(t)
-        peer = radio.peer_state
-        inputs = ControlInputs(
-            t_s=t,
-            encoder_counts=seen.encoder_counts,
-            fix_pose=fix_pose,
-            fix_valid=fix_valid if fix_due else no_fix,
-            sonar_range_m=sonar_gap,
-            sonar_fresh=sonar_due,
-            peer_pose=peer[..., :3],
-            peer_rate=peer[..., 3:],
-            peer_stamp_s=radio.peer_stamp_s,
-            peer_valid=np.isfinite(radio.peer_stamp_s),
-            peer_is_leader=peer_is_leader,
-            reference_pose=reference_pose,
-            reference_rate=reference_rate,
+        senders = np.count_nonzero((k[:, None] + robots) % broadcast_every == 0, axis=1)
+        sent += int(senders.sum())
+        uniforms = (3 if burst else 2) * noise_worlds * n * int(senders.sum())
+        draws = (
+            noise.fix.standard_normal(
+                (np.count_nonzero(k % fix_every == 0),) + noise.batch_shape + (n, 3)
+            ),
+            noise.sonar.standard_normal(
+                (np.count_nonzero(k % sonar_every == 0),) + noise.batch_shape + (n, beams)
+            ),
+            noise.slip.standard_normal((count * physics_substeps,) + noise.batch_shape + (n, 4)),
+            noise.radio.random(uniforms),
         )
-        state, out = control_step(state, inputs, role, rules, params)
-        errors = metrics.update(t, world.bodies.pose, reference_pose, world.contacts)
+        recorded = tuple(
+            np.empty((count if record_trace else 0, batch_size, n, 3)) for _ in range(6)
+        )
+        run_ticks(
+            first, count, schedule,
+            (np.ascontiguousarray(reference_pose), np.ascontiguousarray(reference_rate)),
+            loop.world, loop.world_constants, loop.controller, loop.radio, loop.link,
+            loop.metrics, draws, recorded, record_trace,
+        )  # fmt: skip
         if trace is not None:
-            trace.t_s.append(t)
-            trace.true_pose.append(world.bodies.pose.copy())
-            trace.estimated_pose.append(state.estimator.pose.copy())
-            trace.desired_pose.append(out.desired_pose)
-            trace.trajectory_pose.append(reference_pose)
-            trace.errors.append(errors)
-            trace.delta_k.append(out.delta_k)
-            trace.kp.append(out.kp)
-        senders = robot_index[(k + robot_index) % broadcast_every == 0]
-        step = WorldInputs(
-            duty=out.duty, dt_s=dt, senders=senders, physics_substeps=physics_substeps
-        )
-        world, fates = step_world(world, step, world_params, noise)
-        if senders.size:
-            payload = np.concatenate((state.estimator.pose, state.estimator.rate), axis=-1)
-            radio.post(t, fates, payload)
+            trace.t_s.extend(t.tolist())
+            for name, values in zip(_TRACED, recorded, strict=True):
+                getattr(trace, name).extend(values)
+            trace.trajectory_pose.extend(np.array(reference_pose))
+    if ticks:
+        metrics.samples_taken((ticks - 1) * dt, loop.previous_contacts)
 
     return BatchResult(
         scenario=scenario,
@@ -284,6 +207,148 @@ def run_batch(
         metrics=metrics,
         rule_count=np.asarray(rule_count, dtype=np.int64),
         trace=trace,
-        radio_sent=radio.sent,
-        radio_delivered=radio.delivered,
+        radio_sent=sent,
+        radio_delivered=loop.delivered,
     )
+
+
+_TRACED = ("true_pose", "estimated_pose", "desired_pose", "errors", "delta_k", "kp")
+"""The trace fields the tick loop writes, in its order."""
+
+
+class _TickLoop:
+    """The arrays of one batch run as `services.sim.ticks.run_ticks` takes them (rows
+    run-major: r = b·N + i)."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        params: ControllerParams,
+        world: WorldParams,
+        noise: WorldNoise,
+        role: RobotRole,
+        rules: FuzzyRuleBase,
+        metrics: MetricsAccumulator,
+    ) -> None:
+        f8, i8, b1 = np.float64, np.int64, np.bool_
+        n = len(scenario.robot_names)
+        batch = metrics.count_all.shape[:-1]
+        worlds = batch[0]
+        rows = worlds * n
+        m = len(world.obstacle_radii_m)
+        beams = len(world.beam_angles_rad)
+        body_radius_m = float(world.body.body_radius_m)
+        pose = np.array(np.broadcast_to(scenario.initial_poses(), (worlds, n, 3)), dtype=f8)
+        self.previous_contacts = np.zeros((worlds, n, n + m), dtype=b1)
+        self.world = (
+            pose,
+            np.zeros((worlds, n, 4)),
+            np.zeros((worlds, n, 4)),
+            np.zeros((worlds, n, 4)),
+            np.zeros(noise.batch_shape + (n, n), dtype=b1),
+            np.zeros((worlds, n, n + m), dtype=b1),
+            np.zeros(1, dtype=b1),
+        )
+        obstacle_centres = np.ascontiguousarray(world.obstacle_centres_m, dtype=f8).reshape(-1, 2)
+        obstacle_radii = np.ascontiguousarray(world.obstacle_radii_m, dtype=f8).reshape(-1)
+        self.world_constants = (
+            body_constants(world.body),
+            body_radius_m,
+            counts_per_radian(world.body.encoder_counts_per_rev),
+            fix_noise_std(world.positioning),
+            sonar_constants(world.sonar, body_radius_m),
+            np.ascontiguousarray(world.beam_angles_rad, dtype=f8),
+            np.concatenate((obstacle_centres, np.zeros((n, 2)))),
+            np.concatenate((obstacle_radii, np.full(n, body_radius_m))),
+            obstacle_centres,
+            obstacle_radii,
+        )
+
+        def state_set() -> tuple[tuple[NDArray[np.generic], ...], tuple[NDArray[np.generic], ...]]:
+            floats = (
+                (3,), (3,), (3,), (3,), (3,), (2,), (beams, 2), (n,), (4,), (4,), (3,), (3,),
+                (3,), (3,), (3,), (3,), (2,),
+            )  # fmt: skip
+            flags = ((4,), (), (), (), (beams,), ())
+            return (
+                tuple(np.zeros((rows,) + core) for core in floats),
+                tuple(
+                    np.zeros((rows,) + core, dtype=i8 if i == 0 else b1)
+                    for i, core in enumerate(flags)
+                ),
+            )
+
+        set_a, set_b = state_set(), state_set()
+        initial = ControllerState.initial(batch + (n,), beams)
+        est, pid = initial.estimator, initial.pid
+        side = np.zeros(batch + (n, n))
+        starting = rows_of(
+            batch + (n,),
+            (est.pose, 1, f8), (est.rate, 1, f8), (pid.integral, 1, f8),
+            (pid.previous_error, 1, f8), (pid.error_rate, 1, f8),
+            (initial.avoidance_offset_m, 1, f8), (initial.echo_points_m, 2, f8), (side, 1, f8),
+            (est.previous_counts, 1, i8), (est.localised, 0, b1), (pid.saturated, 0, b1),
+            (pid.started, 0, b1), (initial.echo_valid, 1, b1),
+        )  # fmt: skip
+        for target, value in zip(set_a[0][:8] + set_a[1][:5], starting, strict=True):
+            target[...] = value
+        leader = np.arange(n) == metrics.layout.leader_index
+        role_rows = rows_of(
+            batch + (n,),
+            (np.broadcast_to(leader, (n, n)), 1, b1), (np.zeros((n, n), dtype=b1), 1, b1),
+            (role.is_leader, 0, b1), (role.slot_distance_m, 0, f8), (role.slot_angle_rad, 0, f8),
+        )  # fmt: skip
+        rule_rows = rows_of(
+            batch + (n,),
+            (rules.error_centres, 1, f8), (rules.rate_centres, 1, f8),
+            (rules.error_set_count, 0, i8), (rules.rate_set_count, 0, i8),
+            (rules.rule_outputs, 2, f8),
+        )  # fmt: skip
+        self.controller = (
+            params.constants,
+            set_a,
+            set_b,
+            (
+                np.zeros((rows, 3)),
+                np.zeros(rows, dtype=b1),
+                np.full((rows, beams), np.inf),
+                np.zeros((rows, 4), dtype=i8),
+                np.zeros((rows, 3)),
+                np.zeros((rows, 3)),
+                np.zeros((rows, n), dtype=b1),
+            ),
+            tuple(np.ascontiguousarray(a) for a in role_rows),
+            (np.zeros((rows, n, 3)), np.zeros((rows, n, 3)), np.full((rows, n), -np.inf)),
+            tuple(np.ascontiguousarray(a) for a in rule_rows),
+            np.zeros((rows, n), dtype=b1),
+            np.zeros((rows, n, 3)),
+            np.zeros(3),
+        )
+        profile = scenario.radio.link
+        slots = ring_slots(profile, 1.0 / scenario.radio.broadcast_rate_hz)
+        self.delivered = np.zeros(worlds, dtype=i8)
+        self.radio = (
+            np.zeros((slots, worlds, n, 6)),
+            np.full((slots, n), -np.inf),
+            np.full((slots, worlds, n, n), np.inf),
+            np.zeros((slots, worlds, n, n), dtype=b1),
+            np.zeros(n, dtype=i8),
+            self.delivered,
+        )
+        self.link = link_constants(profile)
+        lead = metrics.leader_index
+        distance_m, angle_rad = metrics.slots_relative_to(lead)
+        per_robot, per_run = metrics.kernel_arrays(worlds)
+        self.metrics = (
+            per_robot,
+            per_run,
+            lead,
+            distance_m,
+            angle_rad,
+            metrics_constants(metrics.config),
+            self.previous_contacts,
+            np.zeros(1, dtype=b1),
+            np.zeros((worlds, n, 3)),
+            np.zeros((worlds, n, n + m), dtype=b1),
+            np.zeros(3 * n),
+        )
