@@ -26,7 +26,7 @@ leader.
 
 `MetricsAccumulator` consumes one sample at a time for any batch shape, so a live process and the
 batch simulator produce the same numbers from the same code: the sample's math is the compiled
-`accumulate_sample` (numba), one world at a time, which the accumulator runs over its batch and
+`accumulate_samples` (numba), for a range of worlds, which the accumulator runs over its batch and
 the batch simulator's compiled tick loop calls directly (services/sim/ticks.py) on the
 accumulator's own arrays.  tests/world/oracle.py states the same update in numpy.
 """
@@ -131,7 +131,7 @@ steady-state start, nominal hold and fitness window start (s)."""
 
 
 def metrics_constants(config: MetricsConfig) -> MetricsConstants:
-    """`config` as `accumulate_sample` takes it."""
+    """`config` as `accumulate_samples` takes it."""
     return (
         float(config.body_radius_m),
         float(config.apf_influence_m + 2.0 * config.body_radius_m),
@@ -200,8 +200,9 @@ def pairwise_sum(values: FloatArray) -> float:
 
 
 @njit(cache=True)
-def accumulate_sample(
-    w: int,
+def accumulate_samples(
+    first: int,
+    stop: int,
     t_s: float,
     true_pose: FloatArray,
     trajectory_pose: FloatArray,
@@ -221,91 +222,99 @@ def accumulate_sample(
     contacts_out: BoolArray,
     scratch: FloatArray,
 ) -> None:
-    """Add one sample of world w: true poses (N, 3) against the trajectory pose (3,).
+    """Add one sample of worlds (runs) first .. stop - 1: true poses (W, N, 3) against the
+    trajectory pose (W or 1, 3).
 
-    slot_* (N,) are the slots relative to robot `lead`, the acting leader.  contacts (N, N + M)
+    slot_* (N,) are the slots relative to robot `lead`, the acting leader.  contacts (W, N, N + M)
     as the physics reported them (contacts_known false: derived from the gaps), previous the
     last sample's.  per_robot: the accumulator's (W, N) arrays in `MetricsAccumulator.
     ROBOT_FIELDS` order, per_run its (W,) arrays in `RUN_FIELDS` order; updated in place.
-    Writes the errors (N, 3) and the contacts taken (N, N + M); scratch holds 3N floats.
+    Writes the errors (W, N, 3) and the contacts taken (W, N, N + M); scratch holds 3N floats.
     """
     body_radius_m, near_limit_m, steady_start_s, hold_s, fitness_start_s = constants
     (last_near_s, sq_pos_nom, sq_head_nom, count_nom, sq_pos_all, sq_head_all, count_all,
      max_pos_nom, max_pos_all, sq_pos_nom_lead, sq_head_nom_lead, count_nom_lead,
      sq_pos_all_lead, sq_head_all_lead, count_all_lead) = per_robot  # fmt: skip
     sum_abs_error, count_fitness, min_robot_gap, min_obstacle_gap, collisions = per_run
-    n = true_pose.shape[0]
-    m = obstacle_radii_m.shape[0]
-    lx = true_pose[lead, 0]
-    ly = true_pose[lead, 1]
-    ltheta = true_pose[lead, 2]
-    onsets = 0
-    for i in range(n):
-        # Reference: the trajectory for the leader, the slot of eq. 17 for a follower.
-        if i == lead:
-            rx, ry, rtheta = trajectory_pose[0], trajectory_pose[1], trajectory_pose[2]
-        else:
-            rx, ry = slot_in_world(lx, ly, ltheta, slot_distance_m[i], slot_angle_rad[i])
-            rtheta = ltheta
-        errors_out[i, 0] = true_pose[i, 0] - rx
-        errors_out[i, 1] = true_pose[i, 1] - ry
-        errors_out[i, 2] = wrap_angle(true_pose[i, 2] - rtheta)
-        for j in range(m):
-            gap = math.hypot(rx - obstacle_centres_m[j, 0], ry - obstacle_centres_m[j, 1])
-            if gap - obstacle_radii_m[j] <= near_limit_m:
-                last_near_s[w, i] = t_s
-        # Gaps, contacts and their onsets.
-        x = true_pose[i, 0]
-        y = true_pose[i, 1]
-        for j in range(n):
-            gap = math.inf
-            if j != i:
-                gap = math.hypot(x - true_pose[j, 0], y - true_pose[j, 1]) - 2.0 * body_radius_m
-            min_robot_gap[w] = min(min_robot_gap[w], gap)
-            touching = contacts[i, j] if contacts_known else gap < 0.0
-            contacts_out[i, j] = touching
-            if touching and j > i and not (previous_known and previous[i, j]):
-                onsets += 1
-        for j in range(m):
-            centre_gap = math.hypot(x - obstacle_centres_m[j, 0], y - obstacle_centres_m[j, 1])
-            gap = (centre_gap - obstacle_radii_m[j]) - body_radius_m
-            min_obstacle_gap[w] = min(min_obstacle_gap[w], gap)
-            touching = contacts[i, n + j] if contacts_known else gap < 0.0
-            contacts_out[i, n + j] = touching
-            if touching and not (previous_known and previous[i, n + j]):
-                onsets += 1
-    collisions[w] += onsets
-
-    if t_s >= steady_start_s:
+    n = true_pose.shape[1]
+    for w in range(first, stop):
+        pose_w = true_pose[w]
+        trajectory_w = trajectory_pose[w if trajectory_pose.shape[0] > 1 else 0]
+        errors_w = errors_out[w]
+        taken_w = contacts_out[w]
+        contacts_w = contacts[w]
+        previous_w = previous[w]
+        m = obstacle_radii_m.shape[0]
+        lx = pose_w[lead, 0]
+        ly = pose_w[lead, 1]
+        ltheta = pose_w[lead, 2]
+        onsets = 0
         for i in range(n):
-            nominal = (t_s - last_near_s[w, i]) >= hold_s
-            pos_sq = errors_out[i, 0] * errors_out[i, 0] + errors_out[i, 1] * errors_out[i, 1]
-            head_sq = errors_out[i, 2] * errors_out[i, 2]
+            # Reference: the trajectory for the leader, the slot of eq. 17 for a follower.
             if i == lead:
-                sq_pos_all_lead[w, i] += pos_sq
-                sq_head_all_lead[w, i] += head_sq
-                count_all_lead[w, i] += 1.0
-                if nominal:
-                    sq_pos_nom_lead[w, i] += pos_sq
-                    sq_head_nom_lead[w, i] += head_sq
-                    count_nom_lead[w, i] += 1.0
+                rx, ry, rtheta = trajectory_w[0], trajectory_w[1], trajectory_w[2]
             else:
-                sq_pos_all[w, i] += pos_sq
-                sq_head_all[w, i] += head_sq
-                count_all[w, i] += 1.0
-                pos = math.sqrt(pos_sq)
-                max_pos_all[w, i] = max(max_pos_all[w, i], pos)
-                if nominal:
-                    sq_pos_nom[w, i] += pos_sq
-                    sq_head_nom[w, i] += head_sq
-                    count_nom[w, i] += 1.0
-                    max_pos_nom[w, i] = max(max_pos_nom[w, i], pos)
-    if t_s >= fitness_start_s:
-        for i in range(n):
-            for a in range(3):
-                scratch[3 * i + a] = abs(errors_out[i, a])
-        sum_abs_error[w] += pairwise_sum(scratch)
-        count_fitness[w] += 1.0
+                rx, ry = slot_in_world(lx, ly, ltheta, slot_distance_m[i], slot_angle_rad[i])
+                rtheta = ltheta
+            errors_w[i, 0] = pose_w[i, 0] - rx
+            errors_w[i, 1] = pose_w[i, 1] - ry
+            errors_w[i, 2] = wrap_angle(pose_w[i, 2] - rtheta)
+            for j in range(m):
+                gap = math.hypot(rx - obstacle_centres_m[j, 0], ry - obstacle_centres_m[j, 1])
+                if gap - obstacle_radii_m[j] <= near_limit_m:
+                    last_near_s[w, i] = t_s
+            # Gaps, contacts and their onsets.
+            x = pose_w[i, 0]
+            y = pose_w[i, 1]
+            for j in range(n):
+                gap = math.inf
+                if j != i:
+                    gap = math.hypot(x - pose_w[j, 0], y - pose_w[j, 1]) - 2.0 * body_radius_m
+                min_robot_gap[w] = min(min_robot_gap[w], gap)
+                touching = contacts_w[i, j] if contacts_known else gap < 0.0
+                taken_w[i, j] = touching
+                if touching and j > i and not (previous_known and previous_w[i, j]):
+                    onsets += 1
+            for j in range(m):
+                centre_gap = math.hypot(x - obstacle_centres_m[j, 0], y - obstacle_centres_m[j, 1])
+                gap = (centre_gap - obstacle_radii_m[j]) - body_radius_m
+                min_obstacle_gap[w] = min(min_obstacle_gap[w], gap)
+                touching = contacts_w[i, n + j] if contacts_known else gap < 0.0
+                taken_w[i, n + j] = touching
+                if touching and not (previous_known and previous_w[i, n + j]):
+                    onsets += 1
+        collisions[w] += onsets
+
+        if t_s >= steady_start_s:
+            for i in range(n):
+                nominal = (t_s - last_near_s[w, i]) >= hold_s
+                pos_sq = errors_w[i, 0] * errors_w[i, 0] + errors_w[i, 1] * errors_w[i, 1]
+                head_sq = errors_w[i, 2] * errors_w[i, 2]
+                if i == lead:
+                    sq_pos_all_lead[w, i] += pos_sq
+                    sq_head_all_lead[w, i] += head_sq
+                    count_all_lead[w, i] += 1.0
+                    if nominal:
+                        sq_pos_nom_lead[w, i] += pos_sq
+                        sq_head_nom_lead[w, i] += head_sq
+                        count_nom_lead[w, i] += 1.0
+                else:
+                    sq_pos_all[w, i] += pos_sq
+                    sq_head_all[w, i] += head_sq
+                    count_all[w, i] += 1.0
+                    pos = math.sqrt(pos_sq)
+                    max_pos_all[w, i] = max(max_pos_all[w, i], pos)
+                    if nominal:
+                        sq_pos_nom[w, i] += pos_sq
+                        sq_head_nom[w, i] += head_sq
+                        count_nom[w, i] += 1.0
+                        max_pos_nom[w, i] = max(max_pos_nom[w, i], pos)
+        if t_s >= fitness_start_s:
+            for i in range(n):
+                for a in range(3):
+                    scratch[3 * i + a] = abs(errors_w[i, a])
+            sum_abs_error[w] += pairwise_sum(scratch)
+            count_fitness[w] += 1.0
 
 
 @njit(cache=True)
@@ -330,12 +339,11 @@ def _accumulate_worlds(
     errors = np.empty((worlds, n, 3))
     taken = np.empty((worlds, n, n + obstacle_radii_m.shape[0]), dtype=np.bool_)
     scratch = np.empty(3 * n)
-    for w in range(worlds):
-        accumulate_sample(
-            w, t_s, true_pose[w], trajectory_pose[w], lead, slot_distance_m, slot_angle_rad,
-            obstacle_centres_m, obstacle_radii_m, constants, contacts[w], contacts_known,
-            previous[w], previous_known, per_robot, per_run, errors[w], taken[w], scratch,
-        )  # fmt: skip
+    accumulate_samples(
+        0, worlds, t_s, true_pose, trajectory_pose, lead, slot_distance_m, slot_angle_rad,
+        obstacle_centres_m, obstacle_radii_m, constants, contacts, contacts_known, previous,
+        previous_known, per_robot, per_run, errors, taken, scratch,
+    )  # fmt: skip
     return errors, taken
 
 
@@ -505,7 +513,7 @@ class MetricsAccumulator:
         "max_position_all",
         *LEAD_FIELDS,
     )
-    """The per-robot arrays, in the order `accumulate_sample` takes them."""
+    """The per-robot arrays, in the order `accumulate_samples` takes them."""
     RUN_FIELDS = (
         "sum_abs_error",
         "count_fitness",
@@ -513,7 +521,7 @@ class MetricsAccumulator:
         "min_obstacle_gap_m",
         "collisions",
     )
-    """The per-run arrays, in the order `accumulate_sample` takes them."""
+    """The per-run arrays, in the order `accumulate_samples` takes them."""
 
     def slots_relative_to(self, lead: int) -> tuple[FloatArray, FloatArray]:
         """Slot distances and angles (N,) with robot `lead` leading: the scenario's leader
@@ -527,7 +535,7 @@ class MetricsAccumulator:
         return distance_m, angle_rad
 
     def kernel_arrays(self, worlds: int) -> tuple[tuple[NDArray[np.generic], ...], ...]:
-        """The per-robot (worlds, N) and per-run (worlds,) arrays as `accumulate_sample` takes
+        """The per-robot (worlds, N) and per-run (worlds,) arrays as `accumulate_samples` takes
         them: views that it updates in place."""
         n = len(self.layout.names)
         return (

@@ -17,8 +17,8 @@ Body contacts are circles against circles: an overlap is pushed apart along the 
 and reported so that collisions can be counted.  All functions are pure; randomness comes from
 an injected generator.
 
-The math is compiled (numba): `advance_body` steps one body, `push_apart` one world's contacts
-and `encoder_count` reads one wheel's encoder; `step_bodies`, `resolve_contacts` and
+The math is compiled (numba): `advance_bodies` steps a range of bodies, `push_apart` one world's
+contacts and `encoder_count` reads one wheel's encoder; `step_bodies`, `resolve_contacts` and
 `encoder_counts` run them over any batch shape (the world process), and the batch simulator's
 compiled tick loop calls them directly (services/sim/ticks.py).  tests/control/oracle.py
 states the same steps in numpy.
@@ -73,7 +73,20 @@ class BodyState:
 
 
 @njit(cache=True)
-def advance_body(
+def _rim_speed(
+    duty: float, speed_radps: float, slip: float, no_load_radps: float, wheel_radius_m: float
+) -> tuple[float, float, float]:
+    """One wheel's held target speed, and the constant and decaying parts of its rim speed."""
+    target = min(max(duty, -1.0), 1.0) * no_load_radps
+    transient = speed_radps - target
+    gain = wheel_radius_m * (1.0 + slip)
+    return target, gain * target, gain * transient
+
+
+@njit(cache=True)
+def advance_bodies(
+    first: int,
+    stop: int,
     pose: FloatArray,
     wheel_speed_radps: FloatArray,
     wheel_angle_rad: FloatArray,
@@ -87,54 +100,70 @@ def advance_body(
     wheel_angle_out: FloatArray,
     slip_out: FloatArray,
 ) -> None:
-    """One body over dt_s with its duty held; `body` is `body_constants(params)`."""
+    """Bodies (rows) first .. stop - 1 over dt_s with their duties held; `body` is
+    `body_constants(params)`.  Row r reads slip_noise row r modulo its rows (rows of one world
+    repeated for runs that share their noise)."""
     tau, no_load_radps, wheel_radius_m, wheel_base_m, correlation_s, slip_std = body
     decay = math.exp(-dt_s / tau)
-    steady = np.empty(4)
-    fading = np.empty(4)
-    for k in range(4):
-        target = min(max(duty[k], -1.0), 1.0) * no_load_radps
-        transient = wheel_speed_radps[k] - target
-        wheel_speed_out[k] = target + transient * decay
-        wheel_angle_out[k] = wheel_angle_rad[k] + target * dt_s + transient * (tau * (1.0 - decay))
-        # Rim ground speeds v(t) = r(1+s)·(target + transient·e^(-t/τ)): a constant and a
-        # decaying part, each mapped to the body rates of eq. 11 (at θ + π/4 = π/4, unrotated).
-        gain = wheel_radius_m * (1.0 + slip[k])
-        steady[k] = gain * target
-        fading[k] = gain * transient
-    L4 = 4.0 * wheel_base_m
-    a_ss = 0.5 * (steady[2] - steady[0])
-    b_ss = 0.5 * (steady[3] - steady[1])
-    w_ss = (steady[0] + steady[1] + steady[2] + steady[3]) / L4
-    a_tr = 0.5 * (fading[2] - fading[0])
-    b_tr = 0.5 * (fading[3] - fading[1])
-    w_tr = (fading[0] + fading[1] + fading[2] + fading[3]) / L4
-    theta0 = pose[2]
-    dx = 0.0
-    dy = 0.0
-    for q in range(3):
-        t = dt_s * _GAUSS_NODES[q]
-        e_t = math.exp(-t / tau)
-        theta_t = theta0 + w_ss * t + w_tr * (tau * (1.0 - e_t))
-        a_t = a_ss + a_tr * e_t
-        b_t = b_ss + b_tr * e_t
-        # eq. 11 for half-differences a, b: (-2a, -2b, 2a, 2b) as rim speeds.
-        xd, yd, _ = body_rate(-a_t, -b_t, a_t, b_t, theta_t, wheel_base_m)
-        weight = dt_s * _GAUSS_WEIGHTS[q]
-        dx += weight * xd
-        dy += weight * yd
-    dtheta = w_ss * dt_s + w_tr * (tau * (1.0 - decay))
-    pose_out[0] = pose[0] + dx
-    pose_out[1] = pose[1] + dy
-    pose_out[2] = wrap_angle(theta0 + dtheta)
     rho = math.exp(-dt_s / correlation_s)
     spread = slip_std * math.sqrt(1.0 - rho * rho)
-    for k in range(4):
-        slip_out[k] = rho * slip[k] + spread * slip_noise[k]
+    noise_rows = slip_noise.shape[0]
+    for r in range(first, stop):
+        for k in range(4):
+            target, _, _ = _rim_speed(
+                duty[r, k], wheel_speed_radps[r, k], slip[r, k], no_load_radps, wheel_radius_m
+            )
+            transient = wheel_speed_radps[r, k] - target
+            wheel_speed_out[r, k] = target + transient * decay
+            wheel_angle_out[r, k] = (
+                wheel_angle_rad[r, k] + target * dt_s + transient * (tau * (1.0 - decay))
+            )
+        # Rim ground speeds v(t) = r(1+s)·(target + transient·e^(-t/τ)): a constant and a
+        # decaying part, each mapped to the body rates of eq. 11 (at θ + π/4 = π/4, unrotated).
+        _, s0, f0 = _rim_speed(
+            duty[r, 0], wheel_speed_radps[r, 0], slip[r, 0], no_load_radps, wheel_radius_m
+        )
+        _, s1, f1 = _rim_speed(
+            duty[r, 1], wheel_speed_radps[r, 1], slip[r, 1], no_load_radps, wheel_radius_m
+        )
+        _, s2, f2 = _rim_speed(
+            duty[r, 2], wheel_speed_radps[r, 2], slip[r, 2], no_load_radps, wheel_radius_m
+        )
+        _, s3, f3 = _rim_speed(
+            duty[r, 3], wheel_speed_radps[r, 3], slip[r, 3], no_load_radps, wheel_radius_m
+        )
+        L4 = 4.0 * wheel_base_m
+        a_ss = 0.5 * (s2 - s0)
+        b_ss = 0.5 * (s3 - s1)
+        w_ss = (s0 + s1 + s2 + s3) / L4
+        a_tr = 0.5 * (f2 - f0)
+        b_tr = 0.5 * (f3 - f1)
+        w_tr = (f0 + f1 + f2 + f3) / L4
+        theta0 = pose[r, 2]
+        dx = 0.0
+        dy = 0.0
+        for q in range(3):
+            t = dt_s * _GAUSS_NODES[q]
+            e_t = math.exp(-t / tau)
+            theta_t = theta0 + w_ss * t + w_tr * (tau * (1.0 - e_t))
+            a_t = a_ss + a_tr * e_t
+            b_t = b_ss + b_tr * e_t
+            # eq. 11 for half-differences a, b: (-2a, -2b, 2a, 2b) as rim speeds.
+            xd, yd, _ = body_rate(-a_t, -b_t, a_t, b_t, theta_t, wheel_base_m)
+            weight = dt_s * _GAUSS_WEIGHTS[q]
+            dx += weight * xd
+            dy += weight * yd
+        dtheta = w_ss * dt_s + w_tr * (tau * (1.0 - decay))
+        pose_out[r, 0] = pose[r, 0] + dx
+        pose_out[r, 1] = pose[r, 1] + dy
+        pose_out[r, 2] = wrap_angle(theta0 + dtheta)
+        noise = r % noise_rows
+        for k in range(4):
+            slip_out[r, k] = rho * slip[r, k] + spread * slip_noise[noise, k]
 
 
 def body_constants(params: BodyParams) -> tuple[float, float, float, float, float, float]:
-    """`params` as `advance_body` takes them: motor time constant, no-load speed, wheel radius,
+    """`params` as `advance_bodies` takes them: motor time constant, no-load speed, wheel radius,
     wheel base, slip correlation time and slip std."""
     return (
         float(params.motor_time_constant_s),
@@ -154,9 +183,9 @@ def _make_step_rows(parallel: bool):  # type: ignore[no-untyped-def]
         angle_out = np.empty((n, 4))
         slip_out = np.empty((n, 4))
         for i in prange(n):
-            advance_body(
-                pose[i], speed[i], angle[i], slip[i], duty[i], noise[i], dt_s, body,
-                pose_out[i], speed_out[i], angle_out[i], slip_out[i],
+            advance_bodies(
+                i, i + 1, pose, speed, angle, slip, duty, noise, dt_s, body,
+                pose_out, speed_out, angle_out, slip_out,
             )  # fmt: skip
         return pose_out, speed_out, angle_out, slip_out
 

@@ -238,7 +238,7 @@ class _TickLoop:
         m = len(world.obstacle_radii_m)
         beams = len(world.beam_angles_rad)
         body_radius_m = float(world.body.body_radius_m)
-        pose = np.array(np.broadcast_to(scenario.initial_poses(), (worlds, n, 3)), dtype=f8)
+        pose = np.ascontiguousarray(np.broadcast_to(scenario.initial_poses(), (worlds, n, 3)), f8)
         self.previous_contacts = np.zeros((worlds, n, n + m), dtype=b1)
         self.world = (
             pose,

@@ -8,10 +8,10 @@ compiled kernels the world process and the firmware call one at a time:
                 (`world.sensors.fix_axis`) and a sonar sweep (`world.sensors.sonar_reading`)
                 when due
     control     `robot_firmware.control.controller.control_robots` for every robot at once
-    metrics     `world.metrics.accumulate_sample` for every run, on the accumulator's arrays
+    metrics     `world.metrics.accumulate_samples` for every run, on the accumulator's arrays
     broadcast   the robots whose broadcast is due meet the radio medium (`world.radio.
                 next_link_state`, `link_delivery`) and their frames enter the ring
-    bodies      `world.physics.advance_body` per robot and sub-step, `push_apart` per run
+    bodies      `world.physics.advance_bodies` for all robots per sub-step, `push_apart` per run
 
 Every random number is drawn beforehand in numpy, in bulk for the chunk of ticks, from the
 same stream and in the same order as the tick-by-tick form draws them (tests/world/oracle.py,
@@ -32,8 +32,8 @@ from numba import njit
 from numpy.typing import NDArray
 
 from robot_firmware.control.controller import control_robots
-from world.metrics import accumulate_sample
-from world.physics import advance_body, encoder_count, push_apart
+from world.metrics import accumulate_samples
+from world.physics import advance_bodies, encoder_count, push_apart
 from world.radio import link_delivery, next_link_state
 from world.sensors import fix_axis, sonar_reading
 
@@ -184,7 +184,15 @@ def run_ticks(
     targets = radii.shape[0]
     beam_count = beams.shape[0]
     valid = np.ones(targets, dtype=np.bool_)
-    body_out = (np.empty(3), np.empty(4), np.empty(4), np.empty(4))
+    rows = worlds * robots
+    pose_rows = pose.reshape(rows, 3)
+    speed_rows = speed.reshape(rows, 4)
+    angle_rows = angle.reshape(rows, 4)
+    slip_rows = slip.reshape(rows, 4)
+    pose_out = np.empty((rows, 3))
+    speed_out = np.empty((rows, 4))
+    angle_out = np.empty((rows, 4))
+    slip_out = np.empty((rows, 4))
     corrected = np.empty((robots, 2))
     positions = np.empty((robots, 2))
     robot_robot = np.empty((robots, robots), dtype=np.bool_)
@@ -252,13 +260,12 @@ def run_ticks(
         )  # fmt: skip
 
         # Metrics of the sample at the start of the tick.
-        for b in range(worlds):
-            accumulate_sample(
-                b, t_s, pose[b], reference_pose[local], lead, metric_slot_distance,
-                metric_slot_angle, obstacle_centres, obstacle_radii, metric_constants,
-                contacts[b], contacts_known[0], previous[b], previous_known[0], per_robot,
-                per_run, errors[b], taken[b], sum_scratch,
-            )  # fmt: skip
+        accumulate_samples(
+            0, worlds, t_s, pose, reference_pose[local : local + 1], lead, metric_slot_distance,
+            metric_slot_angle, obstacle_centres, obstacle_radii, metric_constants, contacts,
+            contacts_known[0], previous, previous_known[0], per_robot, per_run, errors, taken,
+            sum_scratch,
+        )  # fmt: skip
         previous[:] = taken
         previous_known[0] = True
         if record:
@@ -279,20 +286,16 @@ def run_ticks(
             (out_f[0], out_f[1]),
         )  # fmt: skip
         duty = out_f[9]
-        pose_out, speed_out, angle_out, slip_out = body_out
         for sub in range(substeps):
-            noise = slip_draws[local * substeps + sub]
-            for b in range(worlds):
-                nb = b if noise_worlds == worlds else 0
-                for i in range(robots):
-                    advance_body(
-                        pose[b, i], speed[b, i], angle[b, i], slip[b, i], duty[b * robots + i],
-                        noise[nb, i], sub_dt_s, body, pose_out, speed_out, angle_out, slip_out,
-                    )  # fmt: skip
-                    pose[b, i, :] = pose_out
-                    speed[b, i, :] = speed_out
-                    angle[b, i, :] = angle_out
-                    slip[b, i, :] = slip_out
+            noise = slip_draws[local * substeps + sub].reshape(noise_worlds * robots, 4)
+            advance_bodies(
+                0, rows, pose_rows, speed_rows, angle_rows, slip_rows, duty, noise, sub_dt_s,
+                body, pose_out, speed_out, angle_out, slip_out,
+            )  # fmt: skip
+            pose_rows[:] = pose_out
+            speed_rows[:] = speed_out
+            angle_rows[:] = angle_out
+            slip_rows[:] = slip_out
         for b in range(worlds):
             for i in range(robots):
                 positions[i, 0] = pose[b, i, 0]
