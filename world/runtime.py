@@ -707,14 +707,8 @@ class WorldProcess:
                 keys.alive_all("robot"), self._on_alive, history=True
             )
             session.declare_queryable(keys.admin("world", "*"), self._on_query)
-            # Express: a sense message or a delivered frame leaves at once, never waiting in
-            # Zenoh's batching for more to go with it (each is one small message per tick).
-            self._sense_publishers = [
-                session.declare_publisher(keys.sense(n), express=True) for n in self.names
-            ]
-            self._rx_publishers = [
-                session.declare_publisher(keys.radio_rx(n), express=True) for n in self.names
-            ]
+            self._sense_publishers = [session.declare_publisher(keys.sense(n)) for n in self.names]
+            self._rx_publishers = [session.declare_publisher(keys.radio_rx(n)) for n in self.names]
             self._session = session
             self._events_pub = session.declare_publisher(keys.events())
             for event in self._unpublished:
