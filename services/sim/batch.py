@@ -238,7 +238,8 @@ class _TickLoop:
         m = len(world.obstacle_radii_m)
         beams = len(world.beam_angles_rad)
         body_radius_m = float(world.body.body_radius_m)
-        pose = np.ascontiguousarray(np.broadcast_to(scenario.initial_poses(), (worlds, n, 3)), f8)
+        pose = np.zeros((worlds, n, 3))
+        pose[...] = scenario.initial_poses()
         self.previous_contacts = np.zeros((worlds, n, n + m), dtype=b1)
         self.world = (
             pose,

@@ -49,6 +49,7 @@ def _assert_same_run(got: BatchResult, want: BatchResult, atol: float) -> None:
 @pytest.mark.parametrize(
     ("scenario", "options"),
     [
+        ("paper", {"batch_size": 1}),
         ("paper", {"batch_size": 2}),
         (
             "paper",
