@@ -43,7 +43,7 @@ def rows_of(
     rows = []
     single = batch == ()
     for a, core, dtype in arguments:
-        wanted = _DTYPES.get(dtype) or np.dtype(dtype)  # type: ignore[call-overload]
+        wanted = _DTYPES.get(dtype) or np.dtype(dtype)
         if type(a) is np.ndarray and a.dtype is wanted:
             if single and a.ndim == core:
                 rows.append(a[np.newaxis])
