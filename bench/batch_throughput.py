@@ -5,8 +5,8 @@ tick loop (`services.sim.batch.run_batch`) next to its numpy oracle, the tick-by
 tests/world/oracle.py (`run_batch_oracle`, on the numpy control and body steps of
 tests/control/oracle.py), in the same run, with their ratio.  Each figure is the median of
 several repetitions, the two paths interleaved; compile time is excluded (one short warm-up run
-per path and batch size).  Next to the wall-clock figure, the compiled path's figure per CPU
-second of this process (`time.process_time`), which depends less on what else the machine runs.
+per path and batch size).  Next to each wall-clock figure, the same per CPU second of this
+process (`time.process_time`), which depends less on what else the machine runs.
 The machine and the date are printed with the table.
 
     .venv/bin/python bench/batch_throughput.py [--repeats 3] [--sim-seconds 5]
@@ -75,26 +75,29 @@ def main() -> None:
     print()
     print(
         f"{'B':>6} {'compiled robot-s/s':>19} {'per CPU s':>10} {'oracle robot-s/s':>17} "
-        f"{'ratio':>7}"
+        f"{'per CPU s':>10} {'ratio':>7} {'per CPU':>8}"
     )
     for batch in args.batches:
         walls: dict[str, list[float]] = {path: [] for path in PATHS}
-        cpus: list[float] = []
+        cpus: dict[str, list[float]] = {path: [] for path in PATHS}
         for path in PATHS:
             _seconds(path, scenario, batch, 0.1)  # compile / warm caches
         for _ in range(args.repeats):
             for path in PATHS:
                 wall, cpu = _seconds(path, scenario, batch, sim_s[path])
                 walls[path].append(wall)
-                if path == "compiled":
-                    cpus.append(cpu)
+                cpus[path].append(cpu)
         rate = {
             path: batch * robots * sim_s[path] / statistics.median(walls[path]) for path in PATHS
         }
-        per_cpu = batch * robots * sim_s["compiled"] / statistics.median(cpus)
+        per_cpu = {
+            path: batch * robots * sim_s[path] / statistics.median(cpus[path]) for path in PATHS
+        }
         print(
-            f"{batch:>6} {rate['compiled']:>19.0f} {per_cpu:>10.0f} {rate['oracle']:>17.0f} "
-            f"{rate['compiled'] / rate['oracle']:>6.1f}x",
+            f"{batch:>6} {rate['compiled']:>19.0f} {per_cpu['compiled']:>10.0f} "
+            f"{rate['oracle']:>17.0f} {per_cpu['oracle']:>10.0f} "
+            f"{rate['compiled'] / rate['oracle']:>6.1f}x "
+            f"{per_cpu['compiled'] / per_cpu['oracle']:>7.1f}x",
             flush=True,
         )
     print()
