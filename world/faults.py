@@ -37,7 +37,9 @@ tested alone (tests/world/test_faults.py); world/runtime.py does the I/O:
   `unreachable`).  In lockstep it makes process faults deterministic: it waits for the
   launcher's reply while the world holds the tick, drops a killed or stopped robot's seat at
   that tick itself, and after a restart holds the tick until the new process's liveliness token
-  is seen, then joins it at that tick (the `settle` step, after the reply went out).  A fault on
+  is seen, then joins it at that tick (the `settle` step, after the reply went out); a robot
+  continued after a freeze longer than its lease, whose token went, is joined the same way once
+  its token is back.  A fault on
   the world itself (`kill`, `restart`) is recorded and checkpointed first, then the launcher is
   asked and the world holds until it is killed, so a restarted world resumes exactly there.
   Neither the world's nor the router's `kill`, `restart` or `stop` can be answered (the answer
@@ -434,6 +436,9 @@ class FaultPort(Protocol):
         """Hold the tick until each robot's liveliness token is seen as wanted (True: there);
         those seen.  Other robots' token changes are handled as usual meanwhile."""
 
+    def token_up(self, robot: str) -> bool:
+        """Whether the robot's liveliness token is there, as far as the world has heard."""
+
     def checkpoint_now(self) -> bool:
         """Write a checkpoint of this tick now, durably; False without a checkpoint store."""
 
@@ -587,7 +592,13 @@ class FaultHub:
         elif verb == "restart":
             self._settle.tokens[robot] = (True, verb, TOKEN_TIMEOUT_S)
         elif verb == "cont" and not live:
-            self.port.join_seat(robot, verb)
+            if self.port.token_up(robot):
+                self.port.join_seat(robot, verb)
+            else:
+                # Frozen past its liveliness lease: the router dropped its session, and it
+                # reconnects now.  Joined once its token is back (and its subscriptions with
+                # it), so the tick's sense message and frames cannot go out before it listens.
+                self._settle.tokens[robot] = (True, verb, TOKEN_TIMEOUT_S)
 
     def _forwarded(
         self,

@@ -16,11 +16,23 @@ announced have arrived.  Each robot has a seat:
 | `start` (time starts)     | robots that joined before time started owe tick 0 already      |
 | `act(tick, frames)`       | last act tick = tick; frames owed += frames                    |
 | `frame`                   | frames owed -= 1                                               |
+| `excuse` (owed the tick   | still live; owes nothing before tick k+1; frames owed reset:   |
+|  past the answer time-out)| the tick goes on without it (a message to or from it was lost) |
 | `resume` (world restarted | tick = the checkpoint's; every seat not live until its token   |
 |  from a checkpoint)       | is seen again (`join`)                                         |
 
 A live seat owes tick k when k >= its first owed tick and either its last act is older than k
 or frames it announced are still to come.  The tick completes when no live seat owes it.
+
+**Lost messages.**  A live robot that does not answer is waited for; but a message can be lost
+without the robot dying: a process continued after a freeze longer than its liveliness lease
+reconnects to the router, and until its subscriptions and the world's are declared again on
+both sides, the sense message or radio frames sent to it, or the act and frames it sends, go
+nowhere.  Then both sides would wait for ever, each for the other's message.  So the world
+excuses a seat that has owed the tick for longer than its answer time-out (wall time,
+`WorldConfig.lockstep_answer_timeout_s`): it goes on without that answer and waits for the
+robot again from the next tick, whose sense message the robot hears.  A run in which no
+message is lost never reaches the time-out, so it replays exactly as before.
 
 **Pacer.**  With `max_speed` set, holds ticks back so simulated time runs at most `max_speed`
 times the wall clock; a run that falls behind carries on at the same pace from where it is.
@@ -69,6 +81,8 @@ class LockstepBarrier:
         self.names = tuple(names)
         self.seats = {name: Seat() for name in self.names}
         self.tick = 0
+        self.excused = dict.fromkeys(self.names, 0)
+        """How many ticks went on without each robot's answer (`excuse`)."""
 
     def join(self, name: str) -> None:
         self.seats[name] = Seat(live=True, owes_from_tick=self.tick + 1)
@@ -88,6 +102,14 @@ class LockstepBarrier:
 
     def frame(self, name: str) -> None:
         self.seats[name].frames_owed -= 1
+
+    def excuse(self, name: str) -> None:
+        """The current tick goes on without `name`'s answer; it stays live and is waited for
+        again from the next tick (module docstring, "Lost messages")."""
+        seat = self.seats[name]
+        seat.owes_from_tick = self.tick + 1
+        seat.frames_owed = 0
+        self.excused[name] += 1
 
     def live(self) -> frozenset[str]:
         return frozenset(n for n, s in self.seats.items() if s.live)
@@ -131,6 +153,7 @@ class LockstepBarrier:
                 }
                 for name, s in self.seats.items()
             },
+            "excused": dict(self.excused),
         }
 
     def resume(self, state: Mapping[str, object]) -> None:
@@ -144,6 +167,11 @@ class LockstepBarrier:
             raise ValueError(f"lockstep tick {tick!r} is not a tick")
         self.tick = tick
         self.seats = {name: Seat(live=False, owes_from_tick=tick) for name in self.names}
+        excused = state.get("excused", {})  # absent from checkpoints of older worlds
+        if isinstance(excused, Mapping):
+            for name in self.names:
+                count = excused.get(name, 0)
+                self.excused[name] = count if isinstance(count, int) and count >= 0 else 0
 
 
 class LockstepPacer:

@@ -165,6 +165,9 @@ waiting for that robot (until it speaks again)."""
 PEER_TOKEN_GRACE_S = 0.3
 """Lockstep: after a token change the world itself waited for, how much longer it holds the
 tick, so that every robot has heard of it before the next one (robots act on peers' tokens)."""
+ANSWER_WAIT_STEP_NS = 100_000_000
+"""Lockstep: the most one pass of the wait for answers adds to the answer time-out (0.1 s;
+a pass waits at most 0.05 s unless the process was frozen)."""
 
 
 class WorldConfig(LayeredSettings):
@@ -194,6 +197,11 @@ class WorldConfig(LayeredSettings):
     """Real time: simulated time never runs more than a control period beyond the period the
     slowest live robot has answered; the run slows down instead (world/realtime_guard.py).
     Off: simulated time is the wall clock, whatever the robots do."""
+    lockstep_answer_timeout_s: PositiveFloat = 2.0
+    """Lockstep: how long (wall time) a tick waits for a live robot's answer before it goes
+    on without it and waits for it again from the next tick (a message to or from it was lost,
+    world/lockstep.py "Lost messages").  No answer of a run without lost messages comes this
+    late, so such a run replays exactly."""
     starvation_hold_limit_s: float = Field(default=0.5, gt=0.0, le=1.0)
     """Real time: the longest the world waits for one robot before it goes on without it
     (braking its body): at most the robots' liveliness lease (1 s)."""
@@ -294,6 +302,8 @@ class WorldProcess:
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
+        self._tokens_up: set[str] = set()
+        """The robots whose liveliness token the world has seen and not seen go."""
         self._telemetry: queue.SimpleQueue[TelemetryMessage] = queue.SimpleQueue()
         self._admin = AdminQueue()
         self._fault_admin = AdminQueue()
@@ -522,6 +532,7 @@ class WorldProcess:
     def _on_liveliness(self, name: str, alive: bool) -> None:
         if name not in self.index:
             return
+        self._note_token(name, alive)
         # A robot that (re)joins starts with a clean slate and is waited for from the next
         # tick on: the sense message of the current tick may have gone out before it was
         # listening.  A token seen again while its seat is live (a router restart) only cleans
@@ -806,6 +817,9 @@ class WorldProcess:
         then frames, are queued as the tick still waits for (a liveliness change wakes it at
         once): one wake-up per tick instead of one per message."""
         unbounded = 1 << 30
+        timeout_ns = round(self.config.lockstep_answer_timeout_s * NS_PER_S)
+        waited_ns = 0
+        looked_ns = self._sense_out_mono_ns
         try:
             while not self.barrier.complete() and not self.stop.is_set():
                 acts, frames = self.barrier.owed()
@@ -818,8 +832,32 @@ class WorldProcess:
                     self._wake.wait(0.05)
                 self._wake.clear()
                 self._drain()
+                # The time-out counts the time this loop was awake waiting, each pass at most
+                # `ANSWER_WAIT_STEP_NS`: a world continued after a freeze of its own first
+                # takes the answers that came meanwhile instead of giving up on them.
+                now_ns = time.monotonic_ns()
+                waited_ns += min(now_ns - looked_ns, ANSWER_WAIT_STEP_NS)
+                looked_ns = now_ns
+                if waited_ns > timeout_ns and not self.barrier.complete():
+                    self._excuse_late_robots()
         finally:
             self._acts_wake_at = self._frames_wake_at = 1
+
+    def _excuse_late_robots(self) -> None:
+        """Lockstep: the tick goes on without the answers still owed after the time-out (a
+        message to or from those robots was lost; world/lockstep.py "Lost messages")."""
+        for name in sorted(self.barrier.waiting()):
+            seat = self.barrier.seats[name]
+            log.warning(
+                "robot %s has not answered tick %d within %.1f s (last act for tick %d, %d "
+                "frames owed): a message was lost; going on, waiting for it from the next tick",
+                name,
+                self.barrier.tick,
+                self.config.lockstep_answer_timeout_s,
+                seat.last_act_tick,
+                seat.frames_owed,
+            )
+            self.barrier.excuse(name)
 
     def _run_realtime(
         self, session: zenoh.Session, clock_pub: zenoh.Publisher, truth_pub: zenoh.Publisher
@@ -988,6 +1026,8 @@ class WorldProcess:
         if not self.config.lockstep:  # a lockstep summary holds no wall-clock figure
             summary["real_time_factor"] = self.real_time_factor()
             summary["starvation_guard"] = self.guard.stats().as_dict()
+        else:
+            summary["lockstep_excused"] = dict(self.barrier.excused)
         summary["control_timing"] = {
             name: None if (timing := self.timing.get(name)) is None else timing.model_dump()
             for name in self.names
@@ -1094,6 +1134,7 @@ class WorldProcess:
             if name in wanted:
                 # The wanted edge, or the other one before it (the old process's end before a
                 # restart): the hub takes care of the seat.
+                self._note_token(name, alive)
                 if alive == wanted[name]:
                     seen.add(name)
             else:
@@ -1101,6 +1142,15 @@ class WorldProcess:
         if seen:
             self._wait_serving_queries(PEER_TOKEN_GRACE_S)
         return seen
+
+    def _note_token(self, name: str, alive: bool) -> None:
+        if alive:
+            self._tokens_up.add(name)
+        else:
+            self._tokens_up.discard(name)
+
+    def token_up(self, robot: str) -> bool:
+        return robot in self._tokens_up
 
     def checkpoint_now(self) -> bool:
         if self.checkpoints is None:
@@ -1152,6 +1202,7 @@ class WorldProcess:
                     last_act_tick=seat.last_act_tick,
                     frames_owed=seat.frames_owed,
                     owes_from_tick=seat.owes_from_tick,
+                    excused=self.barrier.excused[name],
                 )
                 for name, seat in self.barrier.seats.items()
             },

@@ -305,6 +305,9 @@ class LockstepSeat(Message):
     last_act_tick: int
     frames_owed: int
     owes_from_tick: int
+    excused: int = 0
+    """Ticks that went on without this robot's answer: a message to or from it was lost
+    (world/lockstep.py, "Lost messages")."""
 
 
 class RunMetrics(Message):

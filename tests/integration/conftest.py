@@ -26,9 +26,19 @@ T = TypeVar("T")
 
 
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    return free_ports(1)[0]
+
+
+def free_ports(count: int) -> list[int]:
+    """`count` distinct free TCP ports on loopback (all held open until each is chosen)."""
+    sockets = [socket.socket() for _ in range(count)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [int(s.getsockname()[1]) for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
 
 
 def swarm_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
@@ -41,9 +51,10 @@ def swarm_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[
     )
 
 
-def run_swarm(out: Path, *args: str, timeout: float = 600.0) -> dict:
-    """`swarm up` to the end of its --duration; returns the world's summary.json."""
-    port = free_port()
+def run_swarm(out: Path, *args: str, timeout: float = 600.0, port: int | None = None) -> dict:
+    """`swarm up` to the end of its --duration (router on `port`, else a free one); returns
+    the world's summary.json."""
+    port = free_port() if port is None else port
     result = swarm_cli(
         "up", "--out", str(out), "--port", str(port), "--no-dashboard", *args, timeout=timeout
     )

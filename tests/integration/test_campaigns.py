@@ -11,12 +11,13 @@ The measured figures are printed.
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.integration.conftest import ROOT, run_swarm
+from tests.integration.conftest import ROOT, free_ports, run_swarm
 
 pytestmark = pytest.mark.slow
 
@@ -25,19 +26,25 @@ TAKEOVER_WITHIN_S = 1.0
 
 
 def _run_twice(tmp_path: Path, campaign: str, duration_s: float) -> tuple[dict[str, Any], list]:
-    """The campaign twice; asserts the two runs wrote the same files, returns the first's."""
+    """The campaign twice, both swarms at once (each loads the host for the other, so the two
+    runs see different timing: lockstep must not care); asserts the two runs wrote the same
+    files, returns the first's."""
     outs = [tmp_path / f"run{k}" for k in (1, 2)]
-    summaries = [
-        run_swarm(
+    ports = dict(zip(outs, free_ports(len(outs)), strict=True))
+
+    def run(out: Path) -> dict[str, Any]:
+        return run_swarm(
             out,
             "--lockstep",
             "--scenario",
             str(CAMPAIGNS / f"{campaign}.yaml"),
             "--duration",
             str(duration_s),
+            port=ports[out],
         )
-        for out in outs
-    ]
+
+    with ThreadPoolExecutor(max_workers=len(outs)) as pool:
+        summaries = list(pool.map(run, outs))
     texts = [(out / "events.jsonl").read_text() for out in outs]
     events = [json.loads(line) for line in texts[0].splitlines()]
     print(f"\n{campaign}: {len(events)} events")

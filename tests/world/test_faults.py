@@ -360,6 +360,7 @@ class FakePort:
     live: frozenset[str] = frozenset(NAMES)
     answers: dict[tuple[str, str], bytes | None] = field(default_factory=dict)
     tokens_seen: bool = True
+    tokens_up: frozenset[str] = frozenset(NAMES)
     calls: list[tuple[Any, ...]] = field(default_factory=list)
     events: list[RunEvent] = field(default_factory=list)
 
@@ -384,6 +385,9 @@ class FakePort:
     def await_tokens(self, wanted: dict[str, bool], timeout_s: float) -> set[str]:
         self.calls.append(("await", dict(wanted)))
         return set(wanted) if self.tokens_seen else set()
+
+    def token_up(self, robot: str) -> bool:
+        return robot in self.tokens_up
 
     def checkpoint_now(self) -> bool:
         self.calls.append(("checkpoint",))
@@ -536,6 +540,18 @@ def test_lockstep_stop_and_cont_leave_and_join_at_their_ticks() -> None:
         ("leave", "robot2", "stop"),
         ("join", "robot2", "cont"),
     ]
+
+
+def test_lockstep_cont_after_the_lease_ran_out_joins_once_the_token_is_back() -> None:
+    port = FakePort(tokens_up=frozenset({"robot1", "robot3"}))
+    port.answers[("launcher", "stop")] = OK
+    port.answers[("launcher", "cont")] = OK
+    hub = _hub(port)
+    hub.request(_body(fault="stop", process="robot2"))
+    hub.request(_body(fault="cont", process="robot2"))
+    assert ("join", "robot2", "cont") not in port.calls  # its token is gone: not yet
+    hub.settle()
+    assert port.calls[-2:] == [("await", {"robot2": True}), ("join", "robot2", "cont")]
 
 
 def test_a_launcher_that_does_not_answer_or_refuses_is_a_refusal() -> None:

@@ -115,6 +115,23 @@ def test_a_dead_robot_never_blocks_even_if_its_acts_still_arrive() -> None:
     assert "robot3" not in barrier.waiting()
 
 
+def test_an_excused_robot_stays_live_and_is_waited_for_again_from_the_next_tick() -> None:
+    barrier = started_barrier()
+    barrier.act("robot1", 0, 0)
+    barrier.act("robot2", 0, 1)  # answered, but its frame never comes
+    assert barrier.waiting() == {"robot2", "robot3"}  # robot3's act never comes
+    barrier.excuse("robot2")
+    barrier.excuse("robot3")
+    assert barrier.complete()
+    assert barrier.live() == set(ROBOTS)
+    assert barrier.seats["robot2"].frames_owed == 0
+    barrier.advance()
+    assert barrier.waiting() == set(ROBOTS)  # tick 1 is owed by all again
+    for name in ROBOTS:
+        barrier.act(name, 1, 0)
+    assert barrier.complete()
+
+
 class FakeClock:
     """A wall clock that only moves when the pacer waits or the test says work took time."""
 
