@@ -266,6 +266,27 @@ def test_register_faults_land_in_the_fpga_model_and_clear(live_swarm: LiveSwarm)
             describe="act messages after clear-registers",
         )
         assert any(abs(act.duty[0] - 0.37) > 0.01 for act in freed[-30:])
+
+    # A robot whose tick outlasts the lockstep answer time-out (2 s): the ticks go on without
+    # its answers (excused) instead of waiting for it, and it is waited for again once cleared.
+    _inject(live, "tick-slow", "robot2", "--extra-ms", "2500")
+    slow = live.wait_for(
+        lambda: (w := _world(live)) and w["lockstep_owed"]["robot2"]["excused"] >= 2 and w,
+        describe="ticks that went on without robot2's late answers",
+    )
+    _inject(live, "clear-registers", "robot2")
+    cleared = _world(live)
+    later = live.wait_for(
+        lambda: (w := _world(live)) and w["t_s"] > cleared["t_s"] + 2.0 and w,
+        describe="ticks after robot2's tick is fast again",
+    )
+    excused = [w["lockstep_owed"]["robot2"]["excused"] for w in (slow, cleared, later)]
+    print(f"robot2 excused (slowed by 2.5 s, at its clearing, 2 s later): {excused}")
+    assert (
+        later["lockstep_owed"]["robot2"]["excused"] == cleared["lockstep_owed"]["robot2"]["excused"]
+    )
+    assert "robot2" in later["live"]
+    assert all(later["lockstep_owed"][name]["excused"] == 0 for name in ("robot1", "robot3"))
     # A saturated or stuck motor is a physical fault: the swarm promises no collision-free run
     # under it (docs/robustness.md), so the count is reported, not bounded.
     print(f"collisions while the register faults were active: {_metrics(live)['collisions']}")
