@@ -83,7 +83,7 @@ from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler, Wait
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, CredentialsFile
 from swarm_config.faults import FAULT_ADAPTER, REGISTER_FAULT_ADAPTER
 from swarm_config.scenario import load_fuzzy_parameters, load_scenario
-from swarm_config.settings import LayeredSettings, describe_validation_error
+from swarm_config.settings import LayeredSettings, describe_validation_error, parse_yaml
 
 log = logging.getLogger("swarm.robot")
 
@@ -439,7 +439,7 @@ class RobotProcess:
         if not payload:
             return ParamsReply(parameters=self.fuzzy_parameters.model_dump())
         try:
-            data = yaml.safe_load(payload.decode("utf-8"))
+            data = parse_yaml(payload.decode("utf-8"))
         except (ValueError, yaml.YAMLError, RecursionError) as exc:
             # ValueError: not UTF-8, or a date that does not exist (PyYAML builds one from
             # 2001-02-30); RecursionError: nested too deep for PyYAML's composer.

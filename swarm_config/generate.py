@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from robot_firmware.control.controller import ControllerParams
@@ -55,6 +54,7 @@ from swarm_config.scenario import (
     TrajectorySpec,
     parse_scenario,
 )
+from swarm_config.settings import parse_yaml
 
 FloatArray = NDArray[np.float64]
 Formation = Literal["wedge", "line", "grid"]
@@ -446,7 +446,7 @@ def generate_scenario_text(request: GenerateRequest) -> str:
         return lines
 
     def parse(text: str) -> Scenario:
-        return parse_scenario(yaml.safe_load(text), f"<generated {name}>")
+        return parse_scenario(parse_yaml(text), f"<generated {name}>")
 
     # The slots at t = 0 need the trajectory only: place them with the robots at their slots
     # and no obstacles, then the obstacles, then the initial poses around them.
