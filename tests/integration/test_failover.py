@@ -158,7 +158,7 @@ def _first_time_under(
     return None
 
 
-@pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "1")], indirect=True)
+@pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "2")], indirect=True)
 def test_killed_leader_is_replaced_and_returns_as_a_follower(live_swarm: LiveSwarm) -> None:
     live = live_swarm
     with _recording(live) as recorder:
