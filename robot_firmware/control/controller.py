@@ -38,9 +38,10 @@ tests/control/oracle.py states the same tick in numpy; the kernels are tested ag
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from typing import NamedTuple
+from typing import Any, NamedTuple, Self
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -51,6 +52,7 @@ from robot_firmware.control.apf import (
     circulation_side,
     clip_vector,
     keep_clear,
+    limit_approach,
     pair_force,
 )
 from robot_firmware.control.estimation import (
@@ -62,6 +64,7 @@ from robot_firmware.control.estimation import (
 from robot_firmware.control.formation import slot_reference
 from robot_firmware.control.fuzzy import FuzzyRuleBase, infer_one
 from robot_firmware.control.kernels import njit, prange
+from robot_firmware.control.kinematics import body_rate, rim_speeds
 from robot_firmware.control.pid import PidState, axis_error, axis_error_rate, pid_law
 from robot_firmware.control.rows import as_rows, from_rows, rows_of
 
@@ -115,6 +118,12 @@ class ControllerParams(BaseModel):
     """Tangential over radial repulsion round another robot (apf.py, `circulation`)."""
     apf_clearance_m: float = Field(default=0.1, ge=0.0)
     """The gap the desired point keeps from another robot's body (apf.py, `keep_clear`)."""
+    approach_guard: bool = True
+    """Limit the commanded approach speed towards every known body (apf.py, `limit_approach`)."""
+    guard_gap_m: float = Field(default=0.03, ge=0.0)
+    """The gap the approach guard keeps to every body the robot knows of."""
+    guard_time_constant_s: PositiveFloat = 0.25
+    """How fast the approach guard lets a gap close: at most (gap - guard_gap_m) / this."""
     avoidance_hold_time_constant_s: PositiveFloat = 1.5
     avoidance_release_time_constant_s: PositiveFloat = 0.4
     fix_gain: float = Field(default=0.3, gt=0.0, le=1.0)
@@ -122,6 +131,13 @@ class ControllerParams(BaseModel):
     peer_timeout_s: PositiveFloat = 1.0
     sonar_beam_angles_rad: tuple[float, ...] = Field(default_factory=default_sonar_beam_angles_rad)
     sonar_peer_margin_m: float = Field(default=0.15, ge=0.0)
+
+    def model_copy(self, *, update: Mapping[str, Any] | None = None, deep: bool = False) -> Self:
+        """A copy (pydantic's), without this one's `constants`: they are computed again from the
+        copy's own fields."""
+        copy = super().model_copy(update=update, deep=deep)
+        copy.__dict__.pop("constants", None)
+        return copy
 
     @cached_property
     def constants(self) -> ControlConstants:
@@ -143,6 +159,9 @@ class ControllerParams(BaseModel):
             max_repulsion_mps=float(self.apf_max_speed_mps),
             circulation_ratio=float(self.apf_circulation_ratio),
             clearance_m=float(self.apf_clearance_m),
+            guard_enabled=bool(self.approach_guard),
+            guard_gap_m=float(self.guard_gap_m),
+            guard_tau_s=float(self.guard_time_constant_s),
             hold_tau_s=float(self.avoidance_hold_time_constant_s),
             release_tau_s=float(self.avoidance_release_time_constant_s),
             fix_gain=float(self.fix_gain),
@@ -187,6 +206,9 @@ class ControlConstants(NamedTuple):
     max_repulsion_mps: float
     circulation_ratio: float
     clearance_m: float
+    guard_enabled: bool
+    guard_gap_m: float
+    guard_tau_s: float
     hold_tau_s: float
     release_tau_s: float
     fix_gain: float
@@ -553,6 +575,50 @@ def control_robots(
             k.wheel_base_m, k.wheel_radius_m, k.max_wheel_radps, integral[i], wheel[i],
         )  # fmt: skip
         started[i] = True
+        # Level 4: the approach guard (apf.py, `limit_approach`) on the commanded velocity,
+        # towards every peer and every sonar echo not explained by a live peer.
+        if active and k.guard_enabled:
+            vx, vy, spin = body_rate(
+                wheel[i, 0] * k.wheel_radius_m, wheel[i, 1] * k.wheel_radius_m,
+                wheel[i, 2] * k.wheel_radius_m, wheel[i, 3] * k.wheel_radius_m, theta,
+                k.wheel_base_m,
+            )  # fmt: skip
+            guarded = False
+            for _ in range(2):  # the bounds one after the other, twice over
+                for j in range(peers):
+                    if not peer_ok[j]:
+                        continue
+                    dx = x - peer_pose[j, 0]
+                    dy = y - peer_pose[j, 1]
+                    centre_gap = math.hypot(dx, dy)
+                    reach = max(centre_gap, 1e-9)
+                    vx, vy, cut = limit_approach(
+                        vx, vy, dx / reach, dy / reach, centre_gap - 2.0 * k.body_radius_m,
+                        1.0 if peer_stopped[i, j] else 0.5, k.guard_gap_m, k.guard_tau_s,
+                    )  # fmt: skip
+                    guarded = guarded or cut
+                for s in range(beams):
+                    if not echo_valid[i, s]:
+                        continue
+                    dx = x - echo_points[i, s, 0]
+                    dy = y - echo_points[i, s, 1]
+                    distance = math.hypot(dx, dy)
+                    reach = max(distance, 1e-9)
+                    vx, vy, cut = limit_approach(
+                        vx, vy, dx / reach, dy / reach, distance - k.body_radius_m, 1.0,
+                        k.guard_gap_m, k.guard_tau_s,
+                    )  # fmt: skip
+                    guarded = guarded or cut
+            if guarded:
+                rims = rim_speeds(vx, vy, spin, theta, k.wheel_base_m)
+                peak = 0.0
+                for w in range(4):
+                    wheel[i, w] = rims[w] / k.wheel_radius_m
+                    peak = max(peak, abs(wheel[i, w]))
+                scale = max(peak / k.max_wheel_radps, 1.0)
+                for w in range(4):
+                    wheel[i, w] = wheel[i, w] / scale
+                saturated[i] = True  # anti-windup: the law's command was not carried out
         for w in range(4):
             if not active:
                 wheel[i, w] = 0.0

@@ -11,6 +11,8 @@ the packages imports it.  Every function takes arrays with arbitrary leading bat
     formation         eqs. 17-21 (atan2 form of eq. 20)
     APF               eq. 25 per pair, floored gap, clipped total; the tangential part round
                       other robots and the desired point kept clear of them
+    approach guard    the commanded velocity's approach to every known body bounded by the
+                      gap left (apf.py, `limit_approach`)
     fuzzy scheduler   eqs. 6-7 with Table 2: the four firing rules, and the full product
     control_step      one tick of 5C levels 2-4 (robot_firmware/control/controller.py)
     step_bodies       first-order motors, exact θ(t), 3-point Gauss-Legendre position
@@ -19,7 +21,7 @@ the packages imports it.  Every function takes arrays with arbitrary leading bat
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -606,6 +608,11 @@ def control_step(
         params.wheel_radius_m,
         params.max_wheel_speed_radps,
     )
+    if params.approach_guard:
+        wheel, guarded = approach_guard(
+            wheel, pose, peer_pose, peer_ok, stopped, echo_points, echo_valid, active, params
+        )
+        pid = replace(pid, saturated=pid.saturated | guarded)
     wheel = np.where(active[..., None], wheel, 0.0)
     duty = np.clip(wheel / params.motor_no_load_speed_radps, -1.0, 1.0)
     new_state = ControllerState(
@@ -630,6 +637,56 @@ def control_step(
         active=active,
     )
     return new_state, outputs
+
+
+def approach_guard(
+    wheel_radps: FloatArray,
+    pose: FloatArray,
+    peer_pose: FloatArray,
+    peer_ok: BoolArray,
+    peer_stopped: BoolArray,
+    echo_points: FloatArray,
+    echo_valid: BoolArray,
+    active: BoolArray,
+    params: ControllerParams,
+) -> tuple[FloatArray, BoolArray]:
+    """The commanded wheel speeds with the approach to every peer (radio) and every sonar echo
+    cut to share · (gap - guard gap) / guard time constant (a live peer's share 0.5, a stopped
+    peer's and an echo's 1), the bounds applied one after the other, twice over, then the wheel
+    speeds scaled back under their limit; and where that changed the command."""
+    r, L = params.wheel_radius_m, params.wheel_base_m
+    theta = pose[..., 2]
+    rate = pose_rate_from_wheel_speeds(wheel_radps * r, theta, L)
+    velocity = rate[..., :2].copy()
+    guarded = np.zeros(theta.shape, dtype=bool)
+    to_peer = pose[..., None, :2] - peer_pose[..., :2]
+    peer_centre_gap = np.hypot(to_peer[..., 0], to_peer[..., 1])
+    peer_dir = to_peer / np.maximum(peer_centre_gap, 1e-9)[..., None]
+    peer_gap = peer_centre_gap - 2.0 * params.body_radius_m
+    peer_share = np.where(peer_stopped, 1.0, 0.5)
+    to_echo = pose[..., None, :2] - echo_points
+    echo_distance = np.hypot(to_echo[..., 0], to_echo[..., 1])
+    echo_dir = to_echo / np.maximum(echo_distance, 1e-9)[..., None]
+    echo_gap = echo_distance - params.body_radius_m
+
+    def bound(direction: FloatArray, gap: FloatArray, share: FloatArray, valid: BoolArray) -> None:
+        allowed = share * (gap - params.guard_gap_m) / params.guard_time_constant_s
+        approach = -np.sum(velocity * direction, axis=-1)
+        cut = valid & active & (approach > allowed)
+        velocity[...] += np.where(cut, approach - allowed, 0.0)[..., None] * direction
+        guarded[...] |= cut
+
+    for _ in range(2):
+        for j in range(peer_ok.shape[-1]):
+            bound(peer_dir[..., j, :], peer_gap[..., j], peer_share[..., j], peer_ok[..., j])
+        for k in range(echo_valid.shape[-1]):
+            one = np.ones(echo_gap[..., k].shape)
+            bound(echo_dir[..., k, :], echo_gap[..., k], one, echo_valid[..., k])
+    command = np.concatenate((velocity, rate[..., 2:]), axis=-1)
+    guarded_radps = wheel_speeds_from_pose_rate(command, theta, L) / r
+    peak = np.max(np.abs(guarded_radps), axis=-1)
+    guarded_radps = guarded_radps / np.maximum(peak / params.max_wheel_speed_radps, 1.0)[..., None]
+    return np.where(guarded[..., None], guarded_radps, wheel_radps), guarded
 
 
 def step_bodies(

@@ -1,5 +1,6 @@
-"""Eqs. 23 and 25 (the force is the potential's negative gradient, clipped near contact), and
-the avoidance round other robots: circulation and keeping the desired point clear (apf.py)."""
+"""Eqs. 23 and 25 (the force is the potential's negative gradient, clipped near contact), the
+avoidance round other robots (circulation, keeping the desired point clear) and the approach
+guard on the commanded velocity (apf.py)."""
 
 from dataclasses import replace
 
@@ -11,6 +12,7 @@ from robot_firmware.control.apf import (
     circulation_side,
     clip_norm,
     keep_clear,
+    limit_approach,
     repulsive_force,
     repulsive_potential,
 )
@@ -22,6 +24,7 @@ from robot_firmware.control.controller import (
     control_step,
 )
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
+from robot_firmware.control.kinematics import pose_rate_from_wheel_speeds
 
 GAIN = 0.005
 INFLUENCE_M = 0.4
@@ -138,10 +141,12 @@ def _one_robot_step(
     stopped: bool,
     reference_xy: tuple[float, float],
     side: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """One leader at the origin, localised, one peer; returns the repulsion, desired pose and
-    the side kept for the peer."""
-    params = ControllerParams()
+    params: ControllerParams | None = None,
+    reference_rate: tuple[float, float] = (0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """One leader at the origin, localised, one peer; returns the repulsion, desired pose, the
+    side kept for the peer and the commanded world velocity (x, y)."""
+    params = ControllerParams() if params is None else params
     state = ControllerState.initial((), len(params.sonar_beam_angles_rad))
     state = replace(
         state,
@@ -161,7 +166,7 @@ def _one_robot_step(
         peer_valid=np.array([True]),
         peer_is_leader=np.array([False]),
         reference_pose=np.array([reference_xy[0], reference_xy[1], 0.0]),
-        reference_rate=np.zeros(3),
+        reference_rate=np.array([reference_rate[0], reference_rate[1], 0.0]),
         peer_stopped=np.array([stopped]),
     )
     role = RobotRole(np.array(True), np.array(0.0), np.array(0.0))
@@ -169,36 +174,67 @@ def _one_robot_step(
         state, inputs, role, FuzzyParameters.table2_defaults().rule_base(), params
     )
     assert new_state.circulation_side is not None
-    return out.repulsion_mps, out.desired_pose, float(new_state.circulation_side[0])
+    rate = pose_rate_from_wheel_speeds(out.wheel_speed_radps * params.wheel_radius_m, 0.0, 0.25)
+    return out.repulsion_mps, out.desired_pose, float(new_state.circulation_side[0]), rate[:2]
 
 
 def test_a_stopped_robot_dead_ahead_is_gone_round_not_stalled_in_front_of() -> None:
     # The reference lies beyond a stopped robot 0.7 m east, a little to the north of the line.
     # Seen from the stopped robot, this one is to its west: going round it by the north is
     # clockwise (side -1).
-    repulsion, _, side = _one_robot_step((0.7, 0.0), True, (1.5, 0.05))
+    repulsion, _, side, _ = _one_robot_step((0.7, 0.0), True, (1.5, 0.05))
     assert repulsion[0] < 0.0 and repulsion[1] > 0.0  # pushed back, and round to the north
     assert side == -1.0
-    repulsion, _, side = _one_robot_step((0.7, 0.0), True, (1.5, -0.05))
+    repulsion, _, side, _ = _one_robot_step((0.7, 0.0), True, (1.5, -0.05))
     assert repulsion[1] < 0.0 and side == 1.0
     # Chosen once per encounter: a goal that leans the other way later does not flip it.
-    repulsion, _, side = _one_robot_step((0.7, 0.0), True, (1.5, -0.05), side=-1.0)
+    repulsion, _, side, _ = _one_robot_step((0.7, 0.0), True, (1.5, -0.05), side=-1.0)
     assert repulsion[1] > 0.0 and side == -1.0
     # Out of reach, the side is forgotten.
     assert _one_robot_step((1.5, 0.0), True, (3.0, 0.05), side=1.0)[2] == 0.0
 
 
 def test_a_live_robot_is_gone_round_anticlockwise_and_no_side_is_kept() -> None:
-    repulsion, _, side = _one_robot_step((0.7, 0.0), False, (1.5, -0.05))
+    repulsion, _, side, _ = _one_robot_step((0.7, 0.0), False, (1.5, -0.05))
     assert repulsion[1] < 0.0 and side == 0.0  # anticlockwise round a robot to the east: south
-    repulsion, _, _ = _one_robot_step((0.0, 0.7), False, (0.0, 1.5))
+    repulsion, _, _, _ = _one_robot_step((0.0, 0.7), False, (0.0, 1.5))
     assert repulsion[0] > 0.0  # round a robot to the north: pushed east
 
 
 def test_the_desired_point_is_kept_clear_of_a_robot_it_runs_into() -> None:
     params = ControllerParams()
     reach_m = 2.0 * params.body_radius_m + params.apf_clearance_m
-    _, desired, _ = _one_robot_step((0.7, 0.0), True, (0.7, 0.0))  # the reference is in it
+    _, desired, _, _ = _one_robot_step((0.7, 0.0), True, (0.7, 0.0))  # the reference is in it
     assert 0.7 - desired[0] >= reach_m - 1e-9
-    _, clear, _ = _one_robot_step((0.7, 0.0), True, (-0.2, 0.0))  # already clear: untouched
+    _, clear, _, _ = _one_robot_step((0.7, 0.0), True, (-0.2, 0.0))  # already clear: untouched
     assert clear[0] == pytest.approx(-0.2, abs=0.02)
+
+
+def test_limit_approach_cuts_only_the_part_towards_the_body() -> None:
+    # The body lies west (the direction from it to the robot is +x); the gap is 0.13 m.
+    vx, vy, cut = limit_approach(-0.5, 0.2, 1.0, 0.0, 0.13, 1.0, 0.03, 0.25)
+    assert cut and vx == pytest.approx(-0.4) and vy == 0.2  # 0.1 m / 0.25 s towards it, at most
+    assert limit_approach(0.3, 0.2, 1.0, 0.0, 0.13, 1.0, 0.03, 0.25) == (0.3, 0.2, False)
+    vx, _, _ = limit_approach(-0.5, 0.0, 1.0, 0.0, 0.13, 0.5, 0.03, 0.25)
+    assert vx == pytest.approx(-0.2)  # half the budget towards a live robot
+    vx, _, cut = limit_approach(0.0, 0.0, 1.0, 0.0, 0.01, 1.0, 0.03, 0.25)
+    assert cut and vx == pytest.approx(0.08)  # inside the kept gap: backed off
+
+
+def test_the_approach_guard_keeps_a_robot_from_driving_into_a_stopped_one() -> None:
+    # A reference racing east straight through a stopped robot whose body is 5 cm away, with
+    # the field reaching only 1 cm: the guard alone stands between them.
+    guarded = ControllerParams(apf_influence_m=0.01)
+    unguarded = guarded.model_copy(update={"approach_guard": False})
+    peer, reference, rate = (0.65, 0.0), (1.5, 0.0), (0.5, 0.0)
+    *_, free = _one_robot_step(peer, True, reference, params=unguarded, reference_rate=rate)
+    *_, held = _one_robot_step(peer, True, reference, params=guarded, reference_rate=rate)
+    allowed_mps = (0.05 - guarded.guard_gap_m) / guarded.guard_time_constant_s
+    assert free[0] > allowed_mps + 0.1
+    assert held[0] == pytest.approx(allowed_mps, abs=1e-9)
+
+
+def test_a_copy_of_the_parameters_computes_its_own_kernel_constants() -> None:
+    params = ControllerParams()
+    assert params.constants.guard_enabled
+    assert not params.model_copy(update={"approach_guard": False}).constants.guard_enabled

@@ -3,7 +3,7 @@
 Seeded random batches of robots, with the edge cases mixed in: headings past ±π, errors that
 saturate the wheels and the integral, robots with no peers and no echoes, stale and invalid
 peers, stopped peers with a side to go round them already chosen or not, sonar sweeps fresh and
-held, unlocalised robots, fuzzy inputs exactly on the set centres
+held, bodies near enough for the approach guard to cut the command, unlocalised robots, fuzzy inputs exactly on the set centres
 and beyond the outer ones, and bodies in contact.  Agreement is required to 1e-12, relative
 for magnitudes above 1 (gains of 60 multiply last-bit differences between numpy's and the
 compiled arithmetic into the 12th digit).
@@ -141,6 +141,10 @@ def test_control_step_equals_the_oracle(name: str, sonar_fresh: bool) -> None:
         inputs = ControlInputs(**{**inputs.__dict__, "t_s": inputs.t_s + params.control_period_s})
     if name == "saturating":
         assert np.any(want_state.pid.saturated)
+    # Bodies are close enough in these cases for the approach guard to change commands.
+    unguarded = params.model_copy(update={"approach_guard": False})
+    _, free_out = oracle.control_step(state, inputs, role, rules, unguarded)
+    assert np.any(np.abs(free_out.wheel_speed_radps - want_out.wheel_speed_radps) > 1e-6)
 
 
 def test_one_robot_equals_its_row_of_a_batch() -> None:
