@@ -35,18 +35,22 @@ its figures are unchanged):
   its velocity pointing back in is taken away.
 
 **Approach guard** (`limit_approach`): the field shapes the path; it does not promise that a
-robot never touches a body, and where several sources meet (the leader going round the
-obstacle with a follower beside it, a robot rejoining past a braked one) it can leave a robot
-driving into one.  So the last step of the control law limits the commanded velocity itself,
-as a control barrier function would: towards each body the robot knows of (a peer from the
-radio, an obstacle point from the sonar) its approach speed is at most
-`share · (gap - guard_gap_m) / guard_time_constant_s`, which lets a gap close no faster than
-exponentially and never below `guard_gap_m` (a negative bound backs the robot off).  A live
-robot takes half of the budget (`share` 0.5: the other one limits its own approach too), a
-stopped one none of it.  The robot keeps every other motion, so it slides along the body
-instead of stopping, and stops where two bodies hem it in.  It acts only a few centimetres
-from a body at the robots' speeds: at 0.10 m and 0.25 s, 0.28 m/s is still allowed towards
-the obstacle, so the paper's scenario, whose closest pass is about 0.10 m, does not feel it.
+robot never touches a body, and where several sources meet (the leader going round the obstacle
+with a follower beside it, a robot rejoining past a braked one) it can leave a robot driving
+into one. So the last step of the control law limits the commanded velocity itself, as a
+control barrier function would: towards each body the robot knows of (a peer from the radio, an
+obstacle point from the sonar) the gap may close at most at `budget = (gap - guard_gap_m) /
+guard_time_constant_s`, so no faster than exponentially and never below `guard_gap_m` (a
+negative budget backs the robot off). Towards a stopped body or an obstacle the robot's
+approach speed is bounded by the whole budget. Towards a live robot it takes half (`share` 0.5:
+the other one limits its own approach too), and less when the other one, by its broadcast
+velocity, already approaches faster than its half: a robot whose motor runs away, or one that
+does not guard, is kept off by the healthy one as far as it can. The robot keeps every other
+motion, so it slides along the body instead of stopping, and stops where two bodies hem it in.
+It acts only a few centimetres from a body at the robots' speeds: at 0.10 m and 0.25 s, 0.28
+m/s is still allowed towards the obstacle. In the paper's scenario, whose closest pass is about
+0.10 m, it cuts a follower's command for a moment as it passes the obstacle; the run's figures
+move in the fourth digit.
 
 `pair_force`, `circulation`, `circulation_side`, `keep_clear`, `limit_approach` and
 `clip_vector` are the compiled scalar forms (numba) the control step's kernel calls;
@@ -136,13 +140,17 @@ def limit_approach(
     direction_y: float,
     gap_m: float,
     share: float,
+    other_approach_mps: float,
     stop_gap_m: float,
     time_constant_s: float,
 ) -> tuple[float, float, bool]:
     """The approach guard for one body: a velocity (vx, vy) with its component towards the body
-    (against the unit direction from the body to the robot) cut to at most
-    share · (gap_m - stop_gap_m) / time_constant_s, and whether it was cut."""
-    allowed = share * (gap_m - stop_gap_m) / time_constant_s
+    (against the unit direction from the body to the robot) cut to at most the lesser of
+    share · budget and budget - other_approach_mps, budget = (gap_m - stop_gap_m) /
+    time_constant_s (other_approach_mps: how fast the body itself approaches this robot, 0 for
+    one that does not move); and whether it was cut."""
+    budget = (gap_m - stop_gap_m) / time_constant_s
+    allowed = min(share * budget, budget - other_approach_mps)
     approach = -(vx * direction_x + vy * direction_y)
     if approach <= allowed:
         return vx, vy, False

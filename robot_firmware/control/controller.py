@@ -592,9 +592,13 @@ def control_robots(
                     dy = y - peer_pose[j, 1]
                     centre_gap = math.hypot(dx, dy)
                     reach = max(centre_gap, 1e-9)
+                    ux = dx / reach
+                    uy = dy / reach
                     vx, vy, cut = limit_approach(
-                        vx, vy, dx / reach, dy / reach, centre_gap - 2.0 * k.body_radius_m,
-                        1.0 if peer_stopped[i, j] else 0.5, k.guard_gap_m, k.guard_tau_s,
+                        vx, vy, ux, uy, centre_gap - 2.0 * k.body_radius_m,
+                        1.0 if peer_stopped[i, j] else 0.5,
+                        peer_rate[i, j, 0] * ux + peer_rate[i, j, 1] * uy, k.guard_gap_m,
+                        k.guard_tau_s,
                     )  # fmt: skip
                     guarded = guarded or cut
                 for s in range(beams):
@@ -605,7 +609,7 @@ def control_robots(
                     distance = math.hypot(dx, dy)
                     reach = max(distance, 1e-9)
                     vx, vy, cut = limit_approach(
-                        vx, vy, dx / reach, dy / reach, distance - k.body_radius_m, 1.0,
+                        vx, vy, dx / reach, dy / reach, distance - k.body_radius_m, 1.0, 0.0,
                         k.guard_gap_m, k.guard_tau_s,
                     )  # fmt: skip
                     guarded = guarded or cut

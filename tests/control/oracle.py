@@ -610,7 +610,16 @@ def control_step(
     )
     if params.approach_guard:
         wheel, guarded = approach_guard(
-            wheel, pose, peer_pose, peer_ok, stopped, echo_points, echo_valid, active, params
+            wheel,
+            pose,
+            peer_pose,
+            inputs.peer_rate,
+            peer_ok,
+            stopped,
+            echo_points,
+            echo_valid,
+            active,
+            params,
         )
         pid = replace(pid, saturated=pid.saturated | guarded)
     wheel = np.where(active[..., None], wheel, 0.0)
@@ -643,6 +652,7 @@ def approach_guard(
     wheel_radps: FloatArray,
     pose: FloatArray,
     peer_pose: FloatArray,
+    peer_rate: FloatArray,
     peer_ok: BoolArray,
     peer_stopped: BoolArray,
     echo_points: FloatArray,
@@ -651,9 +661,10 @@ def approach_guard(
     params: ControllerParams,
 ) -> tuple[FloatArray, BoolArray]:
     """The commanded wheel speeds with the approach to every peer (radio) and every sonar echo
-    cut to share · (gap - guard gap) / guard time constant (a live peer's share 0.5, a stopped
-    peer's and an echo's 1), the bounds applied one after the other, twice over, then the wheel
-    speeds scaled back under their limit; and where that changed the command."""
+    cut to min(share · budget, budget - the peer's own approach), budget = (gap - guard gap) /
+    guard time constant (a live peer's share 0.5, a stopped peer's and an echo's 1; a stopped
+    peer's velocity and an echo's are 0), the bounds applied one after the other, twice over,
+    then the wheel speeds scaled back under their limit; and where that changed the command."""
     r, L = params.wheel_radius_m, params.wheel_base_m
     theta = pose[..., 2]
     rate = pose_rate_from_wheel_speeds(wheel_radps * r, theta, L)
@@ -669,8 +680,17 @@ def approach_guard(
     echo_dir = to_echo / np.maximum(echo_distance, 1e-9)[..., None]
     echo_gap = echo_distance - params.body_radius_m
 
-    def bound(direction: FloatArray, gap: FloatArray, share: FloatArray, valid: BoolArray) -> None:
-        allowed = share * (gap - params.guard_gap_m) / params.guard_time_constant_s
+    peer_approach = np.sum(peer_rate[..., :2] * peer_dir, axis=-1)
+
+    def bound(
+        direction: FloatArray,
+        gap: FloatArray,
+        share: FloatArray,
+        other_approach: FloatArray,
+        valid: BoolArray,
+    ) -> None:
+        budget = (gap - params.guard_gap_m) / params.guard_time_constant_s
+        allowed = np.minimum(share * budget, budget - other_approach)
         approach = -np.sum(velocity * direction, axis=-1)
         cut = valid & active & (approach > allowed)
         velocity[...] += np.where(cut, approach - allowed, 0.0)[..., None] * direction
@@ -678,10 +698,16 @@ def approach_guard(
 
     for _ in range(2):
         for j in range(peer_ok.shape[-1]):
-            bound(peer_dir[..., j, :], peer_gap[..., j], peer_share[..., j], peer_ok[..., j])
+            bound(
+                peer_dir[..., j, :],
+                peer_gap[..., j],
+                peer_share[..., j],
+                peer_approach[..., j],
+                peer_ok[..., j],
+            )
         for k in range(echo_valid.shape[-1]):
             one = np.ones(echo_gap[..., k].shape)
-            bound(echo_dir[..., k, :], echo_gap[..., k], one, echo_valid[..., k])
+            bound(echo_dir[..., k, :], echo_gap[..., k], one, 0.0 * one, echo_valid[..., k])
     command = np.concatenate((velocity, rate[..., 2:]), axis=-1)
     guarded_radps = wheel_speeds_from_pose_rate(command, theta, L) / r
     peak = np.max(np.abs(guarded_radps), axis=-1)

@@ -212,13 +212,26 @@ def test_the_desired_point_is_kept_clear_of_a_robot_it_runs_into() -> None:
 
 def test_limit_approach_cuts_only_the_part_towards_the_body() -> None:
     # The body lies west (the direction from it to the robot is +x); the gap is 0.13 m.
-    vx, vy, cut = limit_approach(-0.5, 0.2, 1.0, 0.0, 0.13, 1.0, 0.03, 0.25)
+    vx, vy, cut = limit_approach(-0.5, 0.2, 1.0, 0.0, 0.13, 1.0, 0.0, 0.03, 0.25)
     assert cut and vx == pytest.approx(-0.4) and vy == 0.2  # 0.1 m / 0.25 s towards it, at most
-    assert limit_approach(0.3, 0.2, 1.0, 0.0, 0.13, 1.0, 0.03, 0.25) == (0.3, 0.2, False)
-    vx, _, _ = limit_approach(-0.5, 0.0, 1.0, 0.0, 0.13, 0.5, 0.03, 0.25)
+    assert limit_approach(0.3, 0.2, 1.0, 0.0, 0.13, 1.0, 0.0, 0.03, 0.25) == (0.3, 0.2, False)
+    vx, _, _ = limit_approach(-0.5, 0.0, 1.0, 0.0, 0.13, 0.5, 0.0, 0.03, 0.25)
     assert vx == pytest.approx(-0.2)  # half the budget towards a live robot
-    vx, _, cut = limit_approach(0.0, 0.0, 1.0, 0.0, 0.01, 1.0, 0.03, 0.25)
+    vx, _, cut = limit_approach(0.0, 0.0, 1.0, 0.0, 0.01, 1.0, 0.0, 0.03, 0.25)
     assert cut and vx == pytest.approx(0.08)  # inside the kept gap: backed off
+
+
+def test_limit_approach_takes_up_what_the_other_robot_does_not() -> None:
+    # A live robot to the west coming at 0.3 m/s, more than its half (0.2 m/s) of the budget:
+    # this one may approach at 0.4 - 0.3 = 0.1 m/s only ...
+    vx, _, _ = limit_approach(-0.5, 0.0, 1.0, 0.0, 0.13, 0.5, 0.3, 0.03, 0.25)
+    assert vx == pytest.approx(-0.1)
+    # ... and backs off when it comes faster than the whole budget.
+    vx, _, _ = limit_approach(0.0, 0.0, 1.0, 0.0, 0.13, 0.5, 0.7, 0.03, 0.25)
+    assert vx == pytest.approx(0.3)
+    # One that keeps its half leaves this one its own half.
+    vx, _, _ = limit_approach(-0.5, 0.0, 1.0, 0.0, 0.13, 0.5, 0.1, 0.03, 0.25)
+    assert vx == pytest.approx(-0.2)
 
 
 def test_the_approach_guard_keeps_a_robot_from_driving_into_a_stopped_one() -> None:

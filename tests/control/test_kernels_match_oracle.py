@@ -3,10 +3,10 @@
 Seeded random batches of robots, with the edge cases mixed in: headings past ±π, errors that
 saturate the wheels and the integral, robots with no peers and no echoes, stale and invalid
 peers, stopped peers with a side to go round them already chosen or not, sonar sweeps fresh and
-held, bodies near enough for the approach guard to cut the command, unlocalised robots, fuzzy inputs exactly on the set centres
-and beyond the outer ones, and bodies in contact.  Agreement is required to 1e-12, relative
-for magnitudes above 1 (gains of 60 multiply last-bit differences between numpy's and the
-compiled arithmetic into the 12th digit).
+held, bodies near enough for the approach guard to cut the command, unlocalised robots, fuzzy
+inputs exactly on the set centres and beyond the outer ones, and bodies in contact. Agreement
+is required to 1e-12, relative for magnitudes above 1 (gains of 60 multiply last-bit
+differences between numpy's and the compiled arithmetic into the 12th digit).
 """
 
 from __future__ import annotations
