@@ -78,6 +78,7 @@ from robot_firmware.net.frames import (
     initial_sequence,
     next_sequence,
 )
+from robot_firmware.sonar_health import SonarHealth
 from swarm_config.scenario import Scenario, ScenarioError
 
 FloatArray = NDArray[np.float64]
@@ -104,6 +105,8 @@ class RobotMission:
     rule_base: FuzzyRuleBase
     broadcast_rate_hz: float = 20.0
     sonar_rate_hz: float = 20.0
+    sonar_max_range_m: float = 3.0
+    """The farthest gap the sonar ring reads (robot_firmware/sonar_health.py)."""
     watchdog_timeout_ms: int = 100
     designated_leader: int | None = None
     """Index of the scenario's leader (None: this robot if `is_leader`, else robot 0)."""
@@ -136,6 +139,7 @@ class RobotMission:
             rule_base=rule_base,
             broadcast_rate_hz=scenario.radio.broadcast_rate_hz,
             sonar_rate_hz=scenario.sensors.sonar.rate_hz,
+            sonar_max_range_m=scenario.sensors.sonar.max_range_m,
             designated_leader=scenario.leader_index,
             slots=slots,
         )
@@ -211,6 +215,11 @@ class Firmware:
         so failover depends only on frames and their simulation times."""
         self._handover: tuple[float, tuple[float, float]] | None = None
         """(time, offset from the trajectory) of taking over the lead while driving."""
+        self._handover_pending = False
+        """Whether a leader starts its reference from where it is at its next localised tick
+        (it held still meanwhile), as on taking over the lead."""
+        self.sonar_health = SonarHealth.for_range(mission.sonar_max_range_m)
+        """Whether the sonar ring still hears; while it does not, the robot holds still."""
         self._followed: int | None = None
         """The acting leader of the previous tick (None: none, or no tick yet)."""
         self._rejoin_pending = False
@@ -396,9 +405,10 @@ class Firmware:
         if not bool(self.role.is_leader):
             self._handover = None
             return pose, rate
-        if not was_leader and bool(est.localised):
+        if (not was_leader or self._handover_pending) and bool(est.localised):
             start = (float(est.pose[0] - pose[0]), float(est.pose[1] - pose[1]))
             self._handover = (t_s, start)
+            self._handover_pending = False
         if self._handover is None:
             return pose, rate
         started_s, offset0_m = self._handover
@@ -485,6 +495,8 @@ class Firmware:
             np.array(reference_rate, dtype=float),
         )
         peer_pose, peer_rate, peer_stamp_s = self._coasted_peers(t_s)
+        if sonar_fresh:
+            self._check_sonar(gaps, t_s, peer_pose)
         inputs = ControlInputs(
             t_s=t_s,
             encoder_counts=counts,
@@ -505,8 +517,11 @@ class Firmware:
         self.state, outputs = control_step(
             self.state, inputs, self.role, self.rules, self.mission.params
         )
-        # Level 5: configuration.
-        d.motors.set_duty(tuple(float(x) for x in outputs.duty))
+        # Level 5: configuration (held still while the sonar ring is deaf).
+        if self.sonar_health.failed:
+            d.motors.set_duty((0.0, 0.0, 0.0, 0.0))
+        else:
+            d.motors.set_duty(tuple(float(x) for x in outputs.duty))
         d.watchdog.kick()
         self.safe_stopped = False
         frame = None
@@ -517,6 +532,26 @@ class Firmware:
         return TickReport(
             outputs=outputs, frame=frame, sonar_fresh=sonar_fresh, fix_fresh=fix is not None
         )
+
+    def _check_sonar(self, gaps_m: FloatArray, t_s: float, peer_pose: FloatArray) -> None:
+        """A fresh sweep against the peers known now (robot_firmware/sonar_health.py).  When
+        the ring hears again after a failure, the robot drives on from fresh control state
+        (re-localised, its rejoin or its leader's reference starting from where it is)."""
+        est = self.state.estimator
+        evidence: list[float] = []
+        if bool(est.localised):
+            age_s = t_s - self.peer_stamp_s
+            known = np.isfinite(self.peer_stamp_s) & (age_s <= self.mission.params.peer_timeout_s)
+            centre_m = np.hypot(peer_pose[:, 0] - est.pose[0], peer_pose[:, 1] - est.pose[1])
+            gap_m = centre_m - 2.0 * self.mission.params.body_radius_m
+            evidence = [float(g) for g in gap_m[known]]
+        was_failed = self.sonar_health.failed
+        if self.sonar_health.sweep(gaps_m, evidence) == was_failed:
+            return
+        if was_failed:
+            self._fresh_state_pending = True
+            self._rejoin_pending = True
+            self._handover_pending = True
 
     def _broadcast(self, now_ns: int) -> bytes:
         self._sequence = (

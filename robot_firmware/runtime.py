@@ -399,6 +399,8 @@ class RobotProcess:
             "unlocalised_peer_frames": self.firmware.unlocalised_peer_frames,
             "safe_stopped": self.scheduler.safe_stopped,
             "safe_stops": self.scheduler.safe_stops,
+            "sonar_failed": self.firmware.sonar_health.failed,
+            "sonar_failures": self.firmware.sonar_health.failures,
             "timing": LoopTimingReport(
                 ticks=timing.ticks,
                 deadline_misses=timing.deadline_misses,

@@ -130,6 +130,11 @@ class TelemetryMessage(Message):
     """No sense message for the sense time-out: motors off, watchdog no longer kicked."""
     safe_stops: int = 0
     """Safe stops entered since the robot started."""
+    sonar_failed: bool = False
+    """The sonar ring heard nothing while a peer was in its reach, sweep after sweep: the robot
+    holds still until it hears again (robot_firmware/sonar_health.py)."""
+    sonar_failures: int = 0
+    """How often the sonar ring was taken as failed since the robot started."""
     timing: LoopTimingReport | None = None
     sonar_range_m: tuple[float | None, ...] = ()
     """Per transducer: the gap to the nearest echo, None when nothing was heard."""

@@ -7,8 +7,8 @@ behaves as docs/robustness.md says:
 
 * register faults land in the robot's FPGA model: a stuck PWM's duty is on the act messages'
   pins, a forced watchdog expiry shows as an expired watchdog there, a sonar with no echo
-  hears nothing, the robot's telemetry lists each active fault, and `clear-registers` ends
-  them all;
+  hears nothing (and the robot, hearing no peer it should, holds still), the robot's telemetry
+  lists each active fault, and `clear-registers` ends them all;
 * network faults: loss, latency and jitter on all links, one robot's or one link are
   recorded; a partition of robot3 stops every frame to it while robot2 still hears the
   others, and `heal` lets them through again;
@@ -220,8 +220,9 @@ def test_register_faults_land_in_the_fpga_model_and_clear(live_swarm: LiveSwarm)
                 (t := _query(live, "robot3", "status"))
                 and t.get("sonar_range_m")
                 and all(r is None for r in t["sonar_range_m"])
+                and t["sonar_failed"]
             ),
-            describe="robot3's sonar hearing nothing",
+            describe="robot3's sonar hearing nothing, taken as failed: robot3 holds still",
         )
         for argv in (
             ("encoder-stuck", "robot2", "--wheel", "1"),
@@ -257,9 +258,11 @@ def test_register_faults_land_in_the_fpga_model_and_clear(live_swarm: LiveSwarm)
                     (t := _query(live, name, "status"))
                     and "register_faults" in t
                     and not t["register_faults"]
+                    and not t["sonar_failed"]
                 ),
-                describe=f"{name}'s faults cleared",
+                describe=f"{name}'s faults cleared (and its sonar hearing again)",
             )
+        assert _query(live, "robot3", "status")["sonar_failures"] == 1
         before = len(acts)
         freed = live.wait_for(
             lambda: (a := acts.since(before)) and len(a) > 40 and a,
