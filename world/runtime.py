@@ -197,6 +197,11 @@ class WorldConfig(LayeredSettings):
     """Real time: simulated time never runs more than a control period beyond the period the
     slowest live robot has answered; the run slows down instead (world/realtime_guard.py).
     Off: simulated time is the wall clock, whatever the robots do."""
+    lockstep_token_grace_s: PositiveFloat = 5.0
+    """Lockstep: how long (wall time) the world waits for a robot whose liveliness token went,
+    holding the tick, before it takes the robot as down at that tick.  A router that restarts
+    takes every token with it and brings them back as the clients reconnect: no robot is down,
+    and no simulated time passes meanwhile."""
     lockstep_answer_timeout_s: PositiveFloat = 2.0
     """Lockstep: how long (wall time) a tick waits for a live robot's answer before it goes
     on without it and waits for it again from the next tick (a message to or from it was lost,
@@ -302,6 +307,9 @@ class WorldProcess:
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
         self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
+        self._token_lost_mono_s: dict[str, float] = {}
+        """Lockstep: live robots whose token went, and when (monotonic s): held for the grace
+        (`lockstep_token_grace_s`) before they are down."""
         self._tokens_up: set[str] = set()
         """The robots whose liveliness token the world has seen and not seen go."""
         self._telemetry: queue.SimpleQueue[TelemetryMessage] = queue.SimpleQueue()
@@ -493,6 +501,8 @@ class WorldProcess:
             except queue.Empty:
                 break
             self._on_liveliness(name, alive)
+        if self._token_lost_mono_s:
+            self._tokens_lost_for_good()
         while True:
             try:
                 robot, raw, arrival = self._acts.get_nowait()
@@ -540,12 +550,27 @@ class WorldProcess:
         # fault's tick) changes nothing.
         was_live = name in self.live
         if alive:
+            self._token_lost_mono_s.pop(name, None)
             self._join(name, "liveliness", record=not was_live, owes_now=False)
+        elif was_live and self.config.lockstep and self._time_started:
+            # Held for the grace first: a router restart takes every token and brings it back.
+            self._token_lost_mono_s.setdefault(name, time.monotonic())
         elif was_live:
             self.leave_seat(name, "liveliness")
 
+    def _tokens_lost_for_good(self) -> None:
+        """Lockstep: robots whose token has been gone for the grace are down at this tick."""
+        grace_s = self.config.lockstep_token_grace_s
+        now_s = time.monotonic()
+        for name, lost_s in list(self._token_lost_mono_s.items()):
+            if now_s - lost_s >= grace_s:
+                del self._token_lost_mono_s[name]
+                if name in self.live:
+                    self.leave_seat(name, "liveliness")
+
     def leave_seat(self, robot: str, cause: str) -> None:
         """The robot is down from this tick on: not waited for, braked; `robot_down`."""
+        self._token_lost_mono_s.pop(robot, None)
         self.barrier.leave(robot)
         self.guard.leave(robot)
         self.telemetry_gate.left(robot)
@@ -559,6 +584,7 @@ class WorldProcess:
         self._join(robot, cause, record=True, owes_now=True)
 
     def _join(self, robot: str, cause: str, record: bool, owes_now: bool) -> None:
+        self._token_lost_mono_s.pop(robot, None)
         self.barrier.join(robot)
         if owes_now:
             # The tick's sense message is still to go out, so the robot hears it; waiting for
@@ -847,6 +873,8 @@ class WorldProcess:
         """Lockstep: the tick goes on without the answers still owed after the time-out (a
         message to or from those robots was lost; world/lockstep.py "Lost messages")."""
         for name in sorted(self.barrier.waiting()):
+            if name in self._token_lost_mono_s:
+                continue  # its token went: waited for until the token grace ends
             seat = self.barrier.seats[name]
             log.warning(
                 "robot %s has not answered tick %d within %.1f s (last act for tick %d, %d "
