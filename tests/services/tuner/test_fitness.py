@@ -153,7 +153,7 @@ def test_rule_counts_of_decoded_candidates_enter_the_cost(paper: Scenario) -> No
 
 def test_a_colliding_candidate_pays_the_penalty_per_collision() -> None:
     data = yaml.safe_load(PAPER.read_text(encoding="utf-8"))
-    data["controller"] = {"apf_robot_gain": 0.0, "apf_obstacle_gain": 0.0}
+    data["controller"] = {"apf_robot_gain": 0.0, "apf_obstacle_gain": 0.0, "approach_guard": False}
     data["obstacles"] = [{"position_m": [1.147, 0.966], "radius_m": 0.15}]  # on the leader's path
     blind = parse_scenario(data)
     free = evaluate_fitness(encode_default(), blind, duration_s=SHORT_S, collision_penalty=0.0)

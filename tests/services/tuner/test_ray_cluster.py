@@ -55,7 +55,9 @@ def free_port() -> int:
 
 
 def process_table() -> dict[int, tuple[int, str, str]]:
-    """pid -> (parent pid, start time in clock ticks, command line) of every process now."""
+    """pid -> (parent pid, start time in clock ticks, command line) of every process now, not
+    counting zombies: a killed process stays one until its parent, or whatever inherits it,
+    reaps it, which a container's first process may never do."""
     table: dict[int, tuple[int, str, str]] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -64,6 +66,8 @@ def process_table() -> dict[int, tuple[int, str, str]]:
             command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
+            continue
+        if fields[0] == "Z":
             continue
         table[int(entry.name)] = (int(fields[1]), fields[19], command)
     return table
