@@ -311,6 +311,7 @@ EventKind = Literal[
     "robot_up",
     "leader_change",
     "world_resumed",
+    "collision",
 ]
 
 

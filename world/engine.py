@@ -120,6 +120,9 @@ class WorldEngine:
             self.params.obstacle_radii_m,
             scenario.metrics_config(),
         )
+        self.collisions: list[tuple[float, str, str]] = []
+        """Contacts that began, (t_s, robot, what it touched: a robot or `obstacle K`), in the
+        order the metrics counted them; the world process drains them into its events."""
         self.fixes_cut = np.zeros(self.robot_count, dtype=bool)
         self.network = NetworkFaults(self.names)
         """The radio medium's network faults (world/faults.py); none at the start."""
@@ -183,6 +186,13 @@ class WorldEngine:
             self._next_metrics_ns += self.metrics_period_ns
             reference, _ = self.trajectory.evaluate(self.t_s)
             self.metrics.update(self.t_s, self.bodies.pose, reference, self.state.contacts)
+            for robot, other in self.metrics.last_onsets:
+                with_ = (
+                    self.names[other]
+                    if other < self.robot_count
+                    else f"obstacle {other - self.robot_count + 1}"
+                )
+                self.collisions.append((self.t_s, self.names[robot], with_))
 
     def advance(self, duty: FloatArray, dt_ns: int) -> None:
         """Step the bodies by dt_ns with the given duties (N, 4); record metrics on schedule."""

@@ -50,6 +50,13 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 
+def _onsets(taken: BoolArray, previous: BoolArray | None, n: int) -> list[tuple[int, int]]:
+    """The contacts of one world that began at this sample, as counted in `collisions`: (i, j)
+    for robot i touching robot j > i, or obstacle j - n when j >= n."""
+    began = taken if previous is None else taken & ~previous.reshape(taken.shape)
+    return [(int(i), int(j)) for i, j in zip(*np.nonzero(began), strict=True) if j >= n or j > i]
+
+
 @dataclass(frozen=True)
 class FormationLayout:
     """Robots (N,) of a run: names, which one leads, and each follower's slot."""
@@ -385,6 +392,9 @@ class MetricsAccumulator:
         self.sum_sq_heading_all_lead = np.zeros(shape)
         self.count_all_lead = np.zeros(shape)
         self._previous_contacts: BoolArray | None = None
+        self.last_onsets: list[tuple[int, int]] = []
+        """The contacts that began at the last sample, one run only (else empty): (i, j) for
+        robot i touching robot j > i, or obstacle j - N when j >= N."""
         self.last_t_s = 0.0
         self.leader_index = layout.leader_index
         self.leader_term = 0
@@ -497,6 +507,7 @@ class MetricsAccumulator:
             self._contact_rows(previous, worlds, width), previous is not None,
             *self.kernel_arrays(worlds),
         )  # fmt: skip
+        self.last_onsets = _onsets(taken[0], previous, n) if worlds == 1 else []
         self._previous_contacts = taken.reshape(batch + (n, width))
         self.last_t_s = t_s
         return errors.reshape(batch + (n, 3))

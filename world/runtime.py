@@ -973,6 +973,7 @@ class WorldProcess:
             self._catch_up = None
 
     def _publish_truth(self, truth_pub: zenoh.Publisher) -> None:
+        self._record_collisions()
         every = max(1, round(NS_PER_S / (self.config.truth_rate_hz * self.period_ns)))
         if self.tick % every:
             return
@@ -1212,6 +1213,12 @@ class WorldProcess:
         else:
             self._events_pub.put(event.model_dump_json().encode())
         return event
+
+    def _record_collisions(self) -> None:
+        """Every contact that began since the last tick, as a `collision` event at its time."""
+        for t_s, robot, touched in self.engine.collisions:
+            self.record("collision", robot, {"with": touched, "tick": self.tick}, t_s=t_s)
+        self.engine.collisions.clear()
 
     def _status(self) -> WorldStatusReply:
         return WorldStatusReply(

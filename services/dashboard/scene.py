@@ -79,6 +79,7 @@ EVENT_STYLES: dict[str, EventStyle] = {
     "robot_up": EventStyle((0, 158, 115), rr.components.MarkerShape.Up, "INFO"),
     "leader_change": EventStyle((0, 114, 178), rr.components.MarkerShape.Asterisk, "WARN"),
     "world_resumed": EventStyle((230, 159, 0), rr.components.MarkerShape.Square, "INFO"),
+    "collision": EventStyle((230, 0, 0), rr.components.MarkerShape.Plus, "ERROR"),
 }
 _DEFAULT_EVENT_STYLE = EventStyle((40, 40, 40), rr.components.MarkerShape.Circle, "INFO")
 

@@ -1,3 +1,4 @@
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -70,3 +71,19 @@ def test_sense_messages_carry_encoders_sonar_and_fixes_on_schedule() -> None:
     third = engine.sense()
     assert third[1].fix is not None and not third[1].fix.valid
     assert engine.t_ns == 50_000_000 and engine.t_s == 50_000_000 / NS_PER_S
+
+
+def test_every_contact_that_begins_is_a_collision_with_its_time_and_what_was_touched() -> None:
+    engine = _engine("ideal")
+    pose = engine.bodies.pose.copy()
+    pose[1, :2] = pose[0, :2] + [0.5, 0.0]  # robot2's body 0.1 m into robot1's
+    pose[2, :2] = [-0.78 + 0.4, 1.34]  # robot3's body 0.05 m into the obstacle
+    engine.state = replace(engine.state, bodies=replace(engine.bodies, pose=pose))
+    period_ns = engine.metrics_period_ns
+    engine.advance(np.zeros((3, 4)), period_ns)
+    assert engine.collisions == [(0.0, "robot1", "robot2"), (0.0, "robot3", "obstacle 1")]
+    engine.collisions.clear()
+    for _ in range(5):  # the bodies are pushed apart and stay touching: no new onset
+        engine.advance(np.zeros((3, 4)), period_ns)
+    assert engine.collisions == []
+    assert engine.summary()["collisions"] == 2

@@ -716,6 +716,7 @@ def test_the_summary_counts_every_kind_and_times_failovers_and_rejoins() -> None
         "robot_up": 2,
         "leader_change": 2,
         "world_resumed": 0,
+        "collision": 0,
     }
     assert summary["faults_injected"] == {"kill": 1, "restart": 1}
     assert summary["failovers"] == [
