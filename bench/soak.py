@@ -19,7 +19,8 @@ memory of every process every `--rss-every-s`.  At the end it prints, after the 
   from `events.jsonl` or summary.json) and the recovery time (wall seconds from the undo until
   every robot is live with its position error under 5 cm; `-` when that did not happen before
   the next episode);
-* the collision count (goal 0), from the world's last status and summary.json;
+* the collision count (goal 0), from the world's last status and summary.json, and each
+  `collision` event (who touched what, when, in which episode);
 * per process, the RSS at its first and its last sample and the growth between them (goal
   < 20 %), and the same for the PID that lived longest (a restarted process starts afresh, and
   is measured from 20 s after it was first seen, once it has loaded its code).
@@ -364,6 +365,28 @@ def _cell(value: float | None, digits: int = 1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def collisions_by_episode(
+    events: list[dict[str, Any]], records: list[EpisodeRecord]
+) -> list[tuple[float, str, str, str]]:
+    """Each `collision` event: (t_s, robot, what it touched, the episode whose injection came
+    last before it, by simulation time, or "before the first episode")."""
+    starts = [
+        (r.injected.sim_t_s, f"episode {i + 1}, {r.episode.name}")
+        for i, r in enumerate(records)
+        if r.injected is not None and r.injected.sim_t_s is not None
+    ]
+    found = []
+    for event in events:
+        if event.get("kind") != "collision":
+            continue
+        t_s = float(event.get("t_s", 0.0))
+        during = [name for start_s, name in starts if start_s <= t_s]
+        episode = during[-1] if during else "before the first episode"
+        touched = str(event.get("detail", {}).get("with", "?"))
+        found.append((t_s, str(event.get("subject")), touched, episode))
+    return found
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=30.0)
@@ -488,6 +511,9 @@ def main(argv: list[str] | None = None) -> int:
     for event in events:
         kinds[str(event.get("kind"))] = kinds.get(str(event.get("kind")), 0) + 1
     print(f"events recorded: {kinds or 'none'}")
+    collided = collisions_by_episode(events, records)
+    for t_s, robot, touched, episode in collided:
+        print(f"  collision at t = {t_s:.2f} s: {robot} touched {touched} ({episode})")
     print()
     print("| process | PIDs | RSS first MiB | RSS last MiB | growth % | longest-lived PID: "
           "span s, growth % |")  # fmt: skip
@@ -507,6 +533,10 @@ def main(argv: list[str] | None = None) -> int:
         "collisions_status": collisions_status,
         "collisions_summary": collisions_summary,
         "event_counts": kinds,
+        "collisions": [
+            {"t_s": t_s, "robot": robot, "with": touched, "episode": episode}
+            for t_s, robot, touched, episode in collided
+        ],
         "rss": rss,
         "samples": [asdict(s) for s in soak.samples],
     }
