@@ -42,7 +42,6 @@ extrapolated beyond that either.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -51,12 +50,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from robot_firmware.control.controller import (
-    ControlInputs,
     ControllerParams,
     ControllerState,
     ControlOutputs,
+    OneRobotControl,
     RobotRole,
-    control_step,
     sonar_beam_points,
 )
 from robot_firmware.control.fuzzy import FuzzyRuleBase
@@ -194,13 +192,15 @@ class Firmware:
         self._run_id = run_id
         n = len(mission.names)
         self.decoder = FrameDecoder(key, own_id=mission.index, swarm_hash=swarm_hash, run_id=run_id)
-        self.state = ControllerState.initial((), mission.sonar_count)
+        self.control = OneRobotControl(mission.params, n, mission.rule_base)
+        """The control step's arrays, made once: each tick writes its inputs there."""
         self.role = RobotRole(
             is_leader=np.array(mission.is_leader),
             slot_distance_m=np.array(mission.slot_distance_m),
             slot_angle_rad=np.array(mission.slot_angle_rad),
         )
-        self.rules = mission.rule_base  # one scheduler for the three axes
+        self.rules = mission.rule_base
+        """One scheduler for the three axes."""
         self.peer_pose = np.zeros((n, 3))
         self.peer_rate = np.zeros((n, 3))
         self.peer_stamp_s = np.full(n, -np.inf)
@@ -243,8 +243,11 @@ class Firmware:
         self._fresh_state_pending = False
         self._last_tick_ns: int | None = None
         self._resume_gap_ns = round(RESUME_GAP_PERIODS * mission.params.control_period_s * NS_PER_S)
-        self.last_state: ControllerState | None = None
-        self.last_inputs: ControlInputs | None = None
+
+    @property
+    def state(self) -> ControllerState:
+        """The control state the next tick starts from (views into `control`'s arrays)."""
+        return self.control.state
 
     def sonar_echo_points_m(self) -> list[list[float]]:
         """Where the last sonar sweep puts echoes, in the world, seen from the estimated pose:
@@ -258,6 +261,7 @@ class Firmware:
     def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
         """Use another fuzzy scheduler from the next tick on (call between ticks)."""
         self.rules = rule_base
+        self.control.set_rule_base(rule_base)
 
     def boot(self, tick_fabric: Callable[[int], None], pll_timeout_ns: int = 1_000_000) -> None:
         """Identify the fabric, wait for the PLL, arm the motors and the watchdog."""
@@ -468,13 +472,10 @@ class Firmware:
             self.resume(now_ns)
         # Level 1: connection.
         counts = d.encoders.read_counts()
+        control = self.control
         if self._fresh_state_pending:
             self._fresh_state_pending = False
-            fresh = ControllerState.initial((), self.mission.sonar_count)
-            estimator = dataclasses.replace(
-                fresh.estimator, previous_counts=np.array(counts, dtype=np.int64)
-            )
-            self.state = dataclasses.replace(fresh, estimator=estimator)
+            control.reset(counts)
         fix = d.positioning.read_fix()
         if fix is not None:
             self.fix_pose = np.array([fix.x_m, fix.y_m, fix.heading_rad])
@@ -497,26 +498,24 @@ class Firmware:
         peer_pose, peer_rate, peer_stamp_s = self._coasted_peers(t_s)
         if sonar_fresh:
             self._check_sonar(gaps, t_s, peer_pose)
-        inputs = ControlInputs(
-            t_s=t_s,
-            encoder_counts=counts,
-            fix_pose=self.fix_pose,
-            fix_valid=np.array(fix is not None),
-            sonar_range_m=self.sonar_gap_m,
-            sonar_fresh=sonar_fresh,
-            peer_pose=peer_pose,
-            peer_rate=peer_rate,
-            peer_stamp_s=peer_stamp_s,
-            peer_valid=np.isfinite(self.peer_stamp_s),
-            peer_is_leader=self.peer_is_leader,
-            reference_pose=reference_pose,
-            reference_rate=reference_rate,
-            peer_stopped=self.peer_down.copy(),
-        )
-        self.last_state, self.last_inputs = self.state, inputs
-        self.state, outputs = control_step(
-            self.state, inputs, self.role, self.rules, self.mission.params
-        )
+        inputs = control.inputs
+        inputs.encoder_counts[:] = counts
+        inputs.fix_pose[:] = self.fix_pose
+        inputs.fix_valid[...] = fix is not None
+        inputs.sonar_range_m[:] = self.sonar_gap_m
+        inputs.peer_pose[...] = peer_pose
+        inputs.peer_rate[...] = peer_rate
+        inputs.peer_stamp_s[:] = peer_stamp_s
+        np.isfinite(self.peer_stamp_s, out=inputs.peer_valid)
+        inputs.peer_is_leader[:] = self.peer_is_leader
+        inputs.reference_pose[:] = reference_pose
+        inputs.reference_rate[:] = reference_rate
+        control.peer_stopped[:] = self.peer_down
+        role = control.role
+        role.is_leader[...] = self.role.is_leader
+        role.slot_distance_m[...] = self.role.slot_distance_m
+        role.slot_angle_rad[...] = self.role.slot_angle_rad
+        outputs = control.step(t_s, sonar_fresh)
         # Level 5: configuration (held still while the sonar ring is deaf).
         if self.sonar_health.failed:
             d.motors.set_duty((0.0, 0.0, 0.0, 0.0))

@@ -681,13 +681,13 @@ def test_a_silent_peer_is_held_where_it_coasted_to_as_a_stopped_body_until_heard
     t_ns = 200 * MS
     while t_ns / NS_PER_S <= last_s + firmware.mission.leadership.leader_timeout_s:
         tick(fabric, firmware, t_ns)
-        assert firmware.last_inputs is not None
-        assert not bool(np.asarray(firmware.last_inputs.peer_stopped)[1])
+        assert firmware.control.inputs is not None
+        assert not bool(np.asarray(firmware.control.inputs.peer_stopped)[1])
         t_ns += 10 * MS
     for _ in range(50):  # silent past the time-out: stopped, and never stale
         tick(fabric, firmware, t_ns)
         t_ns += 10 * MS
-    inputs = firmware.last_inputs
+    inputs = firmware.control.inputs
     assert inputs is not None and inputs.peer_stopped is not None
     assert bool(inputs.peer_stopped[1]) and bool(inputs.peer_valid[1])
     assert inputs.peer_stamp_s[1] == pytest.approx(t_ns / NS_PER_S - 0.01)
@@ -695,7 +695,7 @@ def test_a_silent_peer_is_held_where_it_coasted_to_as_a_stopped_body_until_heard
     assert np.all(inputs.peer_rate[1] == 0.0)
     firmware.receive(peer_frame(1, sequence, t_ns, 2.0, 0.5), t_ns)
     tick(fabric, firmware, t_ns)
-    inputs = firmware.last_inputs
+    inputs = firmware.control.inputs
     assert inputs is not None and inputs.peer_stopped is not None
     assert not bool(inputs.peer_stopped[1]) and inputs.peer_pose[1, 0] == pytest.approx(2.0)
 
@@ -711,7 +711,7 @@ def test_a_peer_state_dropped_on_resume_does_not_come_back_as_a_stopped_body() -
     t_ns += 3 * NS_PER_S  # this robot was frozen
     firmware.resume(t_ns)
     tick(fabric, firmware, t_ns)
-    inputs = firmware.last_inputs
+    inputs = firmware.control.inputs
     assert inputs is not None and inputs.peer_stopped is not None
     assert not np.isfinite(firmware.peer_stamp_s).any() and not inputs.peer_valid.any()
     assert not inputs.peer_stopped.any()

@@ -1,11 +1,12 @@
 """Build the control kernels ahead of time (numba.pycc) for robot processes (kernels.py).
 
 The build runs the kernels once through numba's JIT on one robot, as the firmware calls them
-(`control_step`, `sonar_beam_points`), so numba infers the same argument types; every kernel
-with exactly one signature so inferred (and not the parallel batch form) is then exported,
-under that signature, from one extension module named after `kernels.source_hash()`.  A JSON
-file beside it lists each export's symbol and the argument types (`AotKernel` checks them on
-every call).  Modules of other hashes in the directory are removed.
+(`OneRobotControl.step`, `sonar_beam_points`; `control_step` too), so numba infers the same
+argument types; every kernel with exactly one signature so inferred (and not the parallel batch
+form) is then exported, under that signature, from one extension module named after
+`kernels.source_hash()`. A JSON file beside it lists each export's symbol and the argument
+types (`AotKernel` checks them on every call). Modules of other hashes in the directory are
+removed.
 
     .venv/bin/python -m robot_firmware.control.aot [--dir DIR] [--check]
 
@@ -57,6 +58,7 @@ def _run_one_robot() -> None:
         ControlInputs,
         ControllerParams,
         ControllerState,
+        OneRobotControl,
         RobotRole,
         control_step,
         sonar_beam_points,
@@ -86,6 +88,8 @@ def _run_one_robot() -> None:
         )
         role = RobotRole(np.array(True), np.array(0.0), np.array(0.0))
         state, _ = control_step(state, inputs, role, FuzzyRuleBase.table2(), params)
+        one = OneRobotControl(params, robots, FuzzyRuleBase.table2())
+        one.step(1.0, fresh)  # the firmware's own way into control_robots
     sonar_beam_points(np.zeros(3), np.zeros(sonar_count), params)
 
 

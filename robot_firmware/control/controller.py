@@ -770,3 +770,149 @@ def control_step(
         active=active,
     )
     return new_state, outputs
+
+
+class OneRobotControl:
+    """`control_step` for one robot, on arrays made once: what the firmware runs every tick.
+
+    `control_step` takes any batch of robots and returns new arrays; for a single robot each
+    call would spend most of its time laying out some forty small arrays as rows, allocating
+    twenty-three outputs and wrapping them again.  Here the rows are made once: the firmware
+    writes the tick's inputs into `inputs` (views of the kernel's input rows) and calls `step`,
+    which runs the same compiled `control_robots` on them.  The controller's state lives in two
+    sets of arrays used in turn, as in the batch simulator (services/sim/ticks.py): a tick reads
+    `state` (views of one set) and writes the other, which becomes `state`.  The results are
+    `control_step`'s, bit for bit (tests/control/test_one_robot_control.py).
+
+    `outputs` and `state` are views: valid until the tick after next overwrites their set.
+    """
+
+    def __init__(self, params: ControllerParams, peers: int, rule_base: FuzzyRuleBase) -> None:
+        self.params = params
+        self.constants = params.constants
+        beams = len(params.sonar_beam_angles_rad)
+        i8, b1 = np.int64, np.bool_
+
+        def state_set() -> tuple[tuple[FloatArray, ...], tuple[NDArray[Any], ...]]:
+            floats = (
+                (3,), (3,), (3,), (3,), (3,), (2,), (beams, 2), (peers,), (4,), (4,), (3,), (3,),
+                (3,), (3,), (3,), (3,), (2,),
+            )  # fmt: skip
+            flags = ((4,), (), (), (), (beams,), ())
+            return (
+                tuple(np.zeros((1,) + core) for core in floats),
+                tuple(
+                    np.zeros((1,) + core, dtype=i8 if i == 0 else b1)
+                    for i, core in enumerate(flags)
+                ),
+            )
+
+        self._sets = (state_set(), state_set())
+        self._current = 0
+        self._inputs_f = (
+            np.zeros((1, 3)), np.full((1, beams), np.inf), np.zeros((1, peers, 3)),
+            np.zeros((1, peers, 3)), np.full((1, peers), -np.inf), np.zeros((1, 3)),
+            np.zeros((1, 3)), np.zeros(1), np.zeros(1),
+        )  # fmt: skip
+        self._inputs_b = (
+            np.zeros((1, 4), dtype=i8), np.zeros(1, dtype=b1), np.zeros((1, peers), dtype=b1),
+            np.zeros((1, peers), dtype=b1), np.zeros((1, peers), dtype=b1),
+            np.zeros(1, dtype=b1),
+        )  # fmt: skip
+        self._scratch_ok = np.zeros((1, peers), dtype=b1)
+        self._scratch_pose = np.zeros((1, peers, 3))
+        self._origin = np.zeros(3)
+        f, b = self._inputs_f, self._inputs_b
+        self.inputs = ControlInputs(
+            t_s=0.0,
+            encoder_counts=b[0][0],
+            fix_pose=f[0][0],
+            fix_valid=b[1].reshape(()),
+            sonar_range_m=f[1][0],
+            sonar_fresh=False,
+            peer_pose=f[2][0],
+            peer_rate=f[3][0],
+            peer_stamp_s=f[4][0],
+            peer_valid=b[2][0],
+            peer_is_leader=b[3][0],
+            reference_pose=f[5][0],
+            reference_rate=f[6][0],
+            peer_stopped=b[4][0],
+        )
+        """The tick's inputs, to write in place (`t_s` and `sonar_fresh` go to `step`)."""
+        self.peer_stopped: BoolArray = b[4][0]
+        """`inputs.peer_stopped` (never None here)."""
+        self.role = RobotRole(
+            is_leader=b[5].reshape(()), slot_distance_m=f[7].reshape(()), slot_angle_rad=f[8]
+        )
+        """This tick's role, to write in place."""
+        self._views = tuple(self._views_of(s) for s in self._sets)
+        self.set_rule_base(rule_base)
+        self.reset(np.zeros(4, dtype=np.int64))
+
+    @staticmethod
+    def _views_of(
+        state_set: tuple[tuple[FloatArray, ...], tuple[NDArray[Any], ...]],
+    ) -> tuple[ControllerState, ControlOutputs]:
+        f, b = state_set
+        state = ControllerState(
+            estimator=EstimatorState(
+                pose=f[0][0], rate=f[1][0], previous_counts=b[0][0], localised=b[1].reshape(())
+            ),
+            pid=PidState(
+                integral=f[2][0],
+                previous_error=f[3][0],
+                error_rate=f[4][0],
+                saturated=b[2].reshape(()),
+                started=b[3].reshape(()),
+            ),
+            avoidance_offset_m=f[5][0],
+            echo_points_m=f[6][0],
+            echo_valid=b[4][0],
+            circulation_side=f[7][0],
+        )
+        outputs = ControlOutputs(
+            wheel_speed_radps=f[8][0], duty=f[9][0], desired_pose=f[10][0],
+            desired_rate=f[11][0], error=f[3][0], delta_k=f[12][0], kp=f[13][0], ki=f[14][0],
+            kd=f[15][0], repulsion_mps=f[16][0], active=b[5].reshape(()),
+        )  # fmt: skip
+        return state, outputs
+
+    @property
+    def state(self) -> ControllerState:
+        """What the next `step` starts from."""
+        return self._views[self._current][0]
+
+    def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
+        """One scheduler for the three axes, from the next `step` on."""
+        f8, i8 = np.float64, np.int64
+        rows = rows_of(
+            (),
+            (rule_base.error_centres, 1, f8), (rule_base.rate_centres, 1, f8),
+            (rule_base.error_set_count, 0, i8), (rule_base.rate_set_count, 0, i8),
+            (rule_base.rule_outputs, 2, f8),
+        )  # fmt: skip
+        self._rules = tuple(np.ascontiguousarray(a) for a in rows)
+
+    def reset(self, previous_counts: ArrayLike) -> None:
+        """The initial state (`ControllerState.initial`), encoders counted from
+        `previous_counts`: the next `step` starts from it."""
+        f, b = self._sets[self._current]
+        for array in f[:8]:
+            array[...] = 0.0
+        b[0][0] = previous_counts
+        for array in b[1:5]:
+            array[...] = False
+
+    def step(self, t_s: float, sonar_fresh: bool) -> ControlOutputs:
+        """One control period on `inputs` and `role` from `state`; returns the outputs."""
+        read_f, read_b = self._sets[self._current]
+        written = 1 - self._current
+        write_f, write_b = self._sets[written]
+        control_robots(
+            0, 1, self.constants, t_s, sonar_fresh, read_f[:8], read_b[:5], self._inputs_f,
+            self._inputs_b, self._rules, write_f, write_b, self._scratch_ok, self._scratch_pose,
+            self._origin,
+        )  # fmt: skip
+        self._current = written
+        return self._views[written][1]
