@@ -1,9 +1,10 @@
 """Throughput of the batch simulator on the paper scenario (not a test: prints a table).
 
 Simulated robot-seconds per wall-clock second for batch sizes B = 1, 100 and 1000: the compiled
-tick loop (`services.sim.batch.run_batch`) next to its numpy oracle, the tick-by-tick loop of
+tick loop (`services.sim.batch.run_batch`, its runs split over one thread per CPU, at most 2)
+next to the same on one thread and to its numpy oracle, the tick-by-tick loop of
 tests/world/oracle.py (`run_batch_oracle`, on the numpy control and body steps of
-tests/control/oracle.py), in the same run, with their ratio.  Each figure is the median of
+tests/control/oracle.py), in the same run, with their ratios.  Each figure is the median of
 several repetitions, the two paths interleaved; compile time is excluded (one short warm-up run
 per path and batch size).  Next to each wall-clock figure, the same per CPU second of this
 process (`time.process_time`), which depends less on what else the machine runs.
@@ -19,6 +20,7 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,6 +35,7 @@ from tests.world.oracle import run_batch_oracle  # noqa: E402
 
 PATHS: dict[str, Callable[..., BatchResult]] = {
     "compiled": run_batch,
+    "one thread": partial(run_batch, threads=1),
     "oracle": run_batch_oracle,
 }
 
@@ -62,7 +65,11 @@ def main() -> None:
         parser.error("--repeats, --sim-seconds and every batch size must be positive")
     scenario = load_scenario(args.scenario)
     robots = len(scenario.robots)
-    sim_s = {"compiled": args.sim_seconds, "oracle": args.oracle_sim_seconds or args.sim_seconds}
+    sim_s = {
+        "compiled": args.sim_seconds,
+        "one thread": args.sim_seconds,
+        "oracle": args.oracle_sim_seconds or args.sim_seconds,
+    }
 
     print("# batch simulator throughput: compiled tick loop vs the numpy oracle")
     for line in machine_lines():
@@ -74,8 +81,9 @@ def main() -> None:
     print(f"# median of {args.repeats} runs per path, interleaved; 100 Hz control")
     print()
     print(
-        f"{'B':>6} {'compiled robot-s/s':>19} {'per CPU s':>10} {'oracle robot-s/s':>17} "
-        f"{'per CPU s':>10} {'ratio':>7} {'per CPU':>8}"
+        f"{'B':>6} {'compiled robot-s/s':>19} {'per CPU s':>10} {'one thread':>11} "
+        f"{'oracle robot-s/s':>17} {'per CPU s':>10} {'ratio':>7} {'per CPU':>8} "
+        f"{'threads':>8}"
     )
     for batch in args.batches:
         walls: dict[str, list[float]] = {path: [] for path in PATHS}
@@ -95,12 +103,17 @@ def main() -> None:
         }
         print(
             f"{batch:>6} {rate['compiled']:>19.0f} {per_cpu['compiled']:>10.0f} "
-            f"{rate['oracle']:>17.0f} {per_cpu['oracle']:>10.0f} "
+            f"{rate['one thread']:>11.0f} {rate['oracle']:>17.0f} {per_cpu['oracle']:>10.0f} "
             f"{rate['compiled'] / rate['oracle']:>6.1f}x "
-            f"{per_cpu['compiled'] / per_cpu['oracle']:>7.1f}x",
+            f"{per_cpu['compiled'] / per_cpu['oracle']:>7.1f}x "
+            f"{rate['compiled'] / rate['one thread']:>7.2f}x",
             flush=True,
         )
     print()
+    print(
+        "ratio: compiled over oracle (wall, per CPU s); threads: compiled over compiled on one "
+        "thread (wall)"
+    )
     print("goal: at least 10000 robot-s/s at B = 100 (compiled)")
 
 

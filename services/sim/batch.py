@@ -21,8 +21,13 @@ The B runs differ by their fuzzy schedulers (a batched rule base) and, unless
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,14 +113,20 @@ def run_batch(
     physics_substeps: int = 1,
     seed: int | None = None,
     duration_s: float | None = None,
+    threads: int | None = None,
 ) -> BatchResult:
     """Simulate `batch_size` runs of `scenario` and return their metrics.
 
     rule_base: one scheduler for all runs, or a batch with leading axis `batch_size`
     (defaults to the scenario's).  controller: overrides the scenario's controller parameters.
+    threads: how many threads share the runs (`_parts`; None: one per CPU, at most
+    `MAX_THREADS`, and one for batches under `MIN_RUNS_PER_THREAD` runs a thread); the results
+    are the same bit for bit whatever it is.
     """
     if batch_size < 1:
         raise ValueError("batch_size must be at least 1")
+    if threads is not None and threads < 1:
+        raise ValueError("threads must be at least 1")
     if physics_substeps < 1:
         raise ValueError("physics_substeps must be at least 1")
     params = controller if controller is not None else scenario.controller_params()
@@ -166,6 +177,8 @@ def run_batch(
     chunk = max(1, CHUNK_VALUES // per_tick)
     trace = Trace() if record_trace else None
     sent = 0
+    parts = loop.parts(_thread_count(threads, batch_size))
+    pool = ThreadPoolExecutor(max_workers=len(parts)) if len(parts) > 1 else None
     for first in range(0, ticks, chunk):
         count = min(chunk, ticks - first)
         k = np.arange(first, first + count)
@@ -187,17 +200,29 @@ def run_batch(
         recorded = tuple(
             np.empty((count if record_trace else 0, batch_size, n, 3)) for _ in range(6)
         )
-        run_ticks(
-            first, count, schedule,
-            (np.ascontiguousarray(reference_pose), np.ascontiguousarray(reference_rate)),
-            loop.world, loop.world_constants, loop.controller, loop.radio, loop.link,
-            loop.metrics, draws, recorded, record_trace,
-        )  # fmt: skip
+        reference = (np.ascontiguousarray(reference_pose), np.ascontiguousarray(reference_rate))
+        calls = []
+        for part in parts:
+            call = partial(
+                run_ticks,
+                first, count, part.first_world, part.stop_world, schedule, reference, part.world,
+                part.world_constants, loop.controller, part.radio, loop.link, part.metrics, draws,
+                recorded, record_trace,
+            )  # fmt: skip
+            calls.append(call)
+        if pool is None:
+            calls[0]()
+        else:
+            for done in [pool.submit(call) for call in calls]:
+                done.result()
+            loop.gather(parts)
         if trace is not None:
             trace.t_s.extend(t.tolist())
             for name, values in zip(_TRACED, recorded, strict=True):
                 getattr(trace, name).extend(values)
             trace.trajectory_pose.extend(np.array(reference_pose))
+    if pool is not None:
+        pool.shutdown()
     if ticks:
         metrics.samples_taken((ticks - 1) * dt, loop.previous_contacts)
 
@@ -214,6 +239,31 @@ def run_batch(
 
 _TRACED = ("true_pose", "estimated_pose", "desired_pose", "errors", "delta_k", "kp")
 """The trace fields the tick loop writes, in its order."""
+
+MAX_THREADS = 2
+"""The most threads a batch is split over (the machines this runs on have 2 cores)."""
+MIN_RUNS_PER_THREAD = 8
+"""Fewer runs than this per thread and the batch runs on one: a thread's hand-over per chunk
+costs more than it saves."""
+
+
+def _thread_count(threads: int | None, batch_size: int) -> int:
+    if threads is None:
+        threads = min(MAX_THREADS, os.cpu_count() or 1)
+    return max(1, min(threads, batch_size // MIN_RUNS_PER_THREAD))
+
+
+@dataclass(frozen=True)
+class _Part:
+    """One thread's runs first_world .. stop_world - 1 and its arguments of `run_ticks`: the
+    batch's arrays, with copies of what all runs share (`run_ticks`)."""
+
+    first_world: int
+    stop_world: int
+    world: tuple[Any, ...]
+    world_constants: tuple[Any, ...]
+    radio: tuple[Any, ...]
+    metrics: tuple[Any, ...]
 
 
 class _TickLoop:
@@ -353,3 +403,42 @@ class _TickLoop:
             np.zeros((worlds, n, n + m), dtype=b1),
             np.zeros(3 * n),
         )
+        self.shared_links = noise.batch_shape[0] != worlds
+        """Whether every run reads one noise element's link states (common random numbers)."""
+
+    def parts(self, count: int) -> list[_Part]:
+        """The runs split into `count` parts of (nearly) equal size; with one part, the batch's
+        own arrays, else each with copies of what all runs share."""
+        worlds = self.world[0].shape[0]
+        bounds = [round(worlds * p / count) for p in range(count + 1)]
+        if count == 1:
+            return [_Part(0, worlds, self.world, self.world_constants, self.radio, self.metrics)]
+        parts = []
+        for first, stop in itertools.pairwise(bounds):
+            world = list(self.world)
+            if self.shared_links:
+                world[4] = world[4].copy()
+            world[6] = world[6].copy()  # contacts_known
+            constants: list[Any] = list(self.world_constants)
+            constants[6] = constants[6].copy()  # the sonar's targets
+            radio = list(self.radio)
+            radio[1], radio[4] = radio[1].copy(), radio[4].copy()  # the ring's stamps and slots
+            metrics: list[Any] = list(self.metrics)
+            metrics[7], metrics[10] = metrics[7].copy(), metrics[10].copy()
+            parts.append(
+                _Part(first, stop, tuple(world), tuple(constants), tuple(radio), tuple(metrics))
+            )
+        return parts
+
+    def gather(self, parts: list[_Part]) -> None:
+        """What all runs share back from the first part (every part evolved it alike)."""
+        head = parts[0]
+        if self.shared_links:
+            self.world[4][...] = head.world[4]
+        self.world[6][...] = head.world[6]
+        self.radio[1][...] = head.radio[1]
+        self.radio[4][...] = head.radio[4]
+        self.metrics[7][...] = head.metrics[7]
+        for part in parts:
+            part.world[6][...] = head.world[6]
+            part.metrics[7][...] = head.metrics[7]

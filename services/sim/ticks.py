@@ -41,12 +41,15 @@ FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True)
-def _deliver(t_s: float, radio: tuple, peers: tuple, robots: int) -> None:
-    """Frames due by t_s into the peer tables; a receiver keeps the newest stamp per sender."""
+def _deliver(
+    t_s: float, radio: tuple, peers: tuple, robots: int, first_world: int, stop_world: int
+) -> None:
+    """Frames due by t_s into the peer tables of runs first_world .. stop_world - 1; a receiver
+    keeps the newest stamp per sender."""
     payload, stamp_s, arrival_s, pending, _next_slot, delivered = radio
     peer_pose, peer_rate, peer_stamp_s = peers
-    slots, worlds = arrival_s.shape[0], arrival_s.shape[1]
-    for b in range(worlds):
+    slots = arrival_s.shape[0]
+    for b in range(first_world, stop_world):
         for tx in range(robots):
             for rx in range(robots):
                 best = -1
@@ -78,9 +81,14 @@ def _broadcast(
     offset: int,
     radio: tuple,
     estimate: tuple,
+    first_world: int,
+    stop_world: int,
 ) -> int:
-    """Frames of the robots due at tick k meet the links, from the positions they are sent from,
-    and enter the ring; returns the offset of the next tick's uniforms."""
+    """Frames of the robots due at tick k, in runs first_world .. stop_world - 1, meet the links,
+    from the positions they are sent from, and enter the ring; returns the offset of the next
+    tick's uniforms.  The ring's slots and stamps, and shared links' states (one noise element
+    for all runs), are the same for every run: a caller that splits the runs gives each part a
+    copy of them."""
     payload, stamp_s, arrival_s, pending, next_slot, _delivered = radio
     latency_ms, jitter_ms, loss, burst, good_to_bad, bad_to_good, loss_good, loss_bad, range_m = (
         link
@@ -97,8 +105,9 @@ def _broadcast(
     block = noise_worlds * senders * robots
     slots = arrival_s.shape[0]
     measure = math.isfinite(range_m)
-    for b in range(worlds):
-        nb = b if noise_worlds == worlds else 0
+    per_run_noise = noise_worlds == worlds
+    for b in range(first_world, stop_world):
+        nb = b if per_run_noise else 0
         s = 0
         for i in range(robots):
             if (k + i) % every != 0:
@@ -130,7 +139,7 @@ def _broadcast(
             continue
         stamp_s[next_slot[i] % slots, i] = t_s
         next_slot[i] += 1
-        for nb in range(noise_worlds):
+        for nb in range(first_world, stop_world) if per_run_noise else range(noise_worlds):
             for j in range(robots):
                 at = offset + (nb * senders + s) * robots + j
                 u_state = uniforms[at + 2 * block] if burst else 0.0
@@ -141,10 +150,12 @@ def _broadcast(
     return offset + (3 if burst else 2) * block
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_ticks(
     first_tick: int,
     ticks: int,
+    first_world: int,
+    stop_world: int,
     schedule: tuple,
     reference: tuple,
     world: tuple,
@@ -157,7 +168,12 @@ def run_ticks(
     trace: tuple,
     record: bool,
 ) -> None:
-    """Ticks first_tick .. first_tick + ticks - 1; every array is updated in place.
+    """Ticks first_tick .. first_tick + ticks - 1 of runs first_world .. stop_world - 1; every
+    array is updated in place, in those runs' rows only, but for what all runs share: the
+    radio ring's slots and stamps, shared links' states, the sonar targets (`centres`), the
+    flags `contacts_known` and `previous_known` and the metrics' scratch.  Runs are independent
+    of each other, so parts of a batch run on threads of their own (the function releases the
+    GIL), each with its own copy of what is shared, and give the same results bit for bit.
 
     schedule: control period, broadcast, fix and sonar periods in ticks, body sub-steps;
     reference: the trajectory's pose and rate (ticks, 3); draws: this chunk's fix (F, NB, N, 3),
@@ -185,6 +201,8 @@ def run_ticks(
     beam_count = beams.shape[0]
     valid = np.ones(targets, dtype=np.bool_)
     rows = worlds * robots
+    first_row = first_world * robots
+    stop_row = stop_world * robots
     pose_rows = pose.reshape(rows, 3)
     speed_rows = speed.reshape(rows, 4)
     angle_rows = angle.reshape(rows, 4)
@@ -204,12 +222,12 @@ def run_ticks(
     for local in range(ticks):
         k = first_tick + local
         t_s = k * dt_s
-        _deliver(t_s, radio, peers, robots)
+        _deliver(t_s, radio, peers, robots, first_world, stop_world)
 
         # Sense: what the pins see at the start of the tick.
         fix_due = k % fix_every == 0
         sonar_due = k % sonar_every == 0
-        for b in range(worlds):
+        for b in range(first_world, stop_world):
             nb = b if noise_worlds == worlds else 0
             if sonar_due:
                 for i in range(robots):
@@ -255,21 +273,21 @@ def run_ticks(
         )  # fmt: skip
         inputs_b = (counts, fix_valid, peer_valid, peer_is_leader, peer_stopped, is_leader)
         control_robots(
-            0, worlds * robots, k_consts, t_s, sonar_due, state_f, state_b, inputs_f, inputs_b,
+            first_row, stop_row, k_consts, t_s, sonar_due, state_f, state_b, inputs_f, inputs_b,
             rules, out_f, out_b, scratch_ok, scratch_pose, origin,
         )  # fmt: skip
 
         # Metrics of the sample at the start of the tick.
         accumulate_samples(
-            0, worlds, t_s, pose, reference_pose[local : local + 1], lead, metric_slot_distance,
-            metric_slot_angle, obstacle_centres, obstacle_radii, metric_constants, contacts,
-            contacts_known[0], previous, previous_known[0], per_robot, per_run, errors, taken,
-            sum_scratch,
+            first_world, stop_world, t_s, pose, reference_pose[local : local + 1], lead,
+            metric_slot_distance, metric_slot_angle, obstacle_centres, obstacle_radii,
+            metric_constants, contacts, contacts_known[0], previous, previous_known[0], per_robot,
+            per_run, errors, taken, sum_scratch,
         )  # fmt: skip
-        previous[:] = taken
+        previous[first_world:stop_world] = taken[first_world:stop_world]
         previous_known[0] = True
         if record:
-            for b in range(worlds):
+            for b in range(first_world, stop_world):
                 for i in range(robots):
                     r = b * robots + i
                     for a in range(3):
@@ -283,20 +301,20 @@ def run_ticks(
         # World step: the due broadcasts meet the radio, then the bodies move and collide.
         offset = _broadcast(
             k, t_s, broadcast_every, pose, link_bad, link, uniforms, offset, radio,
-            (out_f[0], out_f[1]),
+            (out_f[0], out_f[1]), first_world, stop_world,
         )  # fmt: skip
         duty = out_f[9]
         for sub in range(substeps):
             noise = slip_draws[local * substeps + sub].reshape(noise_worlds * robots, 4)
             advance_bodies(
-                0, rows, pose_rows, speed_rows, angle_rows, slip_rows, duty, noise, sub_dt_s,
-                body, pose_out, speed_out, angle_out, slip_out,
+                first_row, stop_row, pose_rows, speed_rows, angle_rows, slip_rows, duty, noise,
+                sub_dt_s, body, pose_out, speed_out, angle_out, slip_out,
             )  # fmt: skip
-            pose_rows[:] = pose_out
-            speed_rows[:] = speed_out
-            angle_rows[:] = angle_out
-            slip_rows[:] = slip_out
-        for b in range(worlds):
+            pose_rows[first_row:stop_row] = pose_out[first_row:stop_row]
+            speed_rows[first_row:stop_row] = speed_out[first_row:stop_row]
+            angle_rows[first_row:stop_row] = angle_out[first_row:stop_row]
+            slip_rows[first_row:stop_row] = slip_out[first_row:stop_row]
+        for b in range(first_world, stop_world):
             for i in range(robots):
                 positions[i, 0] = pose[b, i, 0]
                 positions[i, 1] = pose[b, i, 1]

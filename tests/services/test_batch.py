@@ -104,3 +104,26 @@ def test_same_seed_same_batch_and_bad_arguments_are_refused() -> None:
         run_batch(scenario, 1, physics_substeps=0)
     with pytest.raises(ValueError, match="leading axis"):
         run_batch(scenario, 3, FuzzyRuleBase.stack([FuzzyRuleBase.table2()] * 2))
+
+
+@pytest.mark.parametrize("shared_noise", [False, True])
+def test_runs_split_over_threads_change_nothing(shared_noise: bool) -> None:
+    scenario = _bursty_lemniscate()  # burst states on every link, one per run or shared
+    one = run_batch(
+        scenario, 17, duration_s=1.5, record_trace=True, shared_noise=shared_noise, threads=1
+    )
+    two = run_batch(
+        scenario, 17, duration_s=1.5, record_trace=True, shared_noise=shared_noise, threads=2
+    )
+    _assert_same_run(two, one, atol=0.0)
+    assert two.summaries == one.summaries
+    assert run_batch(scenario, 17, duration_s=0.1, threads=2).metrics is not None
+
+
+def test_thread_counts_follow_the_batch() -> None:
+    assert batch_module._thread_count(None, 1) == 1
+    assert batch_module._thread_count(2, 15) == 1  # under 8 runs a thread
+    assert batch_module._thread_count(2, 16) == 2
+    assert batch_module._thread_count(1, 1000) == 1
+    with pytest.raises(ValueError, match="threads"):
+        run_batch(load_scenario(SCENARIOS / "paper.yaml"), 2, duration_s=0.1, threads=0)
