@@ -20,22 +20,22 @@ with the JIT.
 from __future__ import annotations
 
 import argparse
-import contextlib
+import copy
+import dataclasses
 import os
 import pickle
 import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from machine import machine_lines
-from oracle_paths import PATHS
+from oracle_paths import PATHS, control_path
 
-import robot_firmware.firmware as firmware_module
+from robot_firmware.control.controller import OneRobotControl
 from robot_firmware.net.frames import key_from_secret
 from services.sim.firmware_swarm import FirmwareSwarm
 from swarm_config.scenario import load_scenario
@@ -43,43 +43,35 @@ from swarm_config.scenario import load_scenario
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@contextlib.contextmanager
-def control_path(path: str) -> Iterator[None]:
-    """Within the block the firmware steers with `path` ('compiled' or the numpy 'oracle')."""
-    from tests.control import oracle
-
-    saved = firmware_module.control_step
-    if path == "oracle":
-        firmware_module.control_step = oracle.control_step  # type: ignore[assignment]
-    try:
-        yield
-    finally:
-        firmware_module.control_step = saved
-
-
 REPLAY = """
 import pickle, statistics, sys, time
 import robot_firmware.runtime
 from robot_firmware.control import kernels
-from robot_firmware.control.controller import control_step
+from robot_firmware.control.controller import OneRobotControl
 status = open("/proc/self/status").read()
 imports_mib = int(status.split("VmRSS:")[1].split()[0]) / 1024
-steps = pickle.loads(sys.stdin.buffer.read())
+params, peers, rules, steps = pickle.loads(sys.stdin.buffer.read())
+control = OneRobotControl(params, peers, rules)
 spent = []
 for _ in range(3):
-    for args in steps:
+    for state, inputs, role, t_s, fresh in steps:
+        control.load(state)
+        for name, value in inputs.items():
+            getattr(control.inputs, name)[...] = value
+        for name, value in role.items():
+            getattr(control.role, name)[...] = value
         start = time.perf_counter()
-        control_step(*args)
+        control.step(t_s, fresh)
         spent.append(time.perf_counter() - start)
 print(kernels.MODE, "numba" in sys.modules, imports_mib, statistics.median(spent) * 1e6)
 """
 
 
-def _replay(steps: list[tuple[Any, ...]], mode: str) -> dict[str, float]:
+def _replay(setup: tuple[Any, ...], steps: list[tuple[Any, ...]], mode: str) -> dict[str, float]:
     """Median control step (us) over `steps` and RSS after the imports (MiB), in a child."""
     ran = subprocess.run(
         [sys.executable, "-c", REPLAY],
-        input=pickle.dumps(steps),
+        input=pickle.dumps((*setup, steps)),
         capture_output=True,
         env={**os.environ, "SWARM_KERNELS": mode},
         cwd=ROOT,
@@ -95,6 +87,20 @@ def _replay(steps: list[tuple[Any, ...]], mode: str) -> dict[str, float]:
     }
 
 
+def _snapshot(control: OneRobotControl, t_s: float, sonar_fresh: bool) -> tuple[Any, ...]:
+    """What one control step starts from: its state, inputs and role (copies), time, sweep."""
+    state = copy.deepcopy(control.state)
+    inputs = {
+        f.name: np.array(getattr(control.inputs, f.name))
+        for f in dataclasses.fields(control.inputs)
+        if f.name not in ("t_s", "sonar_fresh")
+    }
+    role = {
+        f.name: np.array(getattr(control.role, f.name)) for f in dataclasses.fields(control.role)
+    }
+    return state, inputs, role, t_s, sonar_fresh
+
+
 def _measure(ticks: int, path: str) -> dict[str, float]:
     scenario = load_scenario(ROOT / "configs/scenarios/paper.yaml")
     with control_path(path):
@@ -107,7 +113,8 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
         tick_s: list[float] = []
         spent = {"control_step": 0.0, "bus": 0.0, "in_leader": 0.0}
         original_tick = firmware.control_tick
-        original_step = firmware_module.control_step
+        control = firmware.control
+        original_step = control.step
         original_read, original_write = bus.read_word, bus.write_word
         recorded: list[tuple[Any, ...]] = []
 
@@ -119,11 +126,11 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
             spent["in_leader"] = 0.0
             return report
 
-        def timed_step(*args: Any) -> Any:
-            if spent["in_leader"]:
-                recorded.append(args)
+        def timed_step(t_s: float, sonar_fresh: bool) -> Any:
+            if spent["in_leader"] and path == "compiled":
+                recorded.append(_snapshot(control, t_s, sonar_fresh))
             start = time.perf_counter()
-            result = original_step(*args)
+            result = original_step(t_s, sonar_fresh)
             spent["control_step"] += (time.perf_counter() - start) * spent["in_leader"]
             return result
 
@@ -146,25 +153,32 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
         reads = (bus.read_count - reads0) / ticks
         writes = (bus.write_count - writes0) / ticks
         # The breakdown, in a second pass (the timers themselves cost a little).
-        firmware_module.control_step = timed_step  # type: ignore[assignment]
+        control.step = timed_step  # type: ignore[method-assign]
         bus.read_word, bus.write_word = timed_read, timed_write  # type: ignore[method-assign]
         timed_ticks = tick_s[:]
         tick_s.clear()
         for _ in range(ticks):
             swarm.step()
         breakdown_total = sum(tick_s)
-        firmware_module.control_step = original_step
+        control.step = original_step  # type: ignore[method-assign]
         bus.read_word, bus.write_word = original_read, original_write  # type: ignore[method-assign]
     replayed = {}
     if path == "compiled":
         # The same steps, first here (JIT), then in a robot process's kind of child (aot).
+        setup = (control.params, len(scenario.robots), firmware.rules)
         jit_spent = []
-        for args in recorded:
+        replay = OneRobotControl(*setup)
+        for state, inputs, role, t_s, fresh in recorded:
+            replay.load(state)
+            for name, value in inputs.items():
+                getattr(replay.inputs, name)[...] = value
+            for name, value in role.items():
+                getattr(replay.role, name)[...] = value
             start = time.perf_counter()
-            original_step(*args)
+            replay.step(t_s, fresh)
             jit_spent.append(time.perf_counter() - start)
-        aot = _replay(recorded, "aot")
-        jit_child = _replay(recorded[:1], "jit")
+        aot = _replay(setup, recorded, "aot")
+        jit_child = _replay(setup, recorded[:1], "jit")
         replayed = {
             "replay_jit_us": float(np.median(jit_spent)) * 1e6,
             "replay_aot_us": aot["step_us"],

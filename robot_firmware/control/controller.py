@@ -843,7 +843,9 @@ class OneRobotControl:
         self.peer_stopped: BoolArray = b[4][0]
         """`inputs.peer_stopped` (never None here)."""
         self.role = RobotRole(
-            is_leader=b[5].reshape(()), slot_distance_m=f[7].reshape(()), slot_angle_rad=f[8]
+            is_leader=b[5].reshape(()),
+            slot_distance_m=f[7].reshape(()),
+            slot_angle_rad=f[8].reshape(()),
         )
         """This tick's role, to write in place."""
         self._views = tuple(self._views_of(s) for s in self._sets)
@@ -903,6 +905,22 @@ class OneRobotControl:
         b[0][0] = previous_counts
         for array in b[1:5]:
             array[...] = False
+
+    def load(self, state: ControllerState) -> None:
+        """Start the next `step` from `state` (one robot's, as `control_step` returns it)."""
+        est, pid = state.estimator, state.pid
+        side = state.circulation_side
+        f, b = self._sets[self._current]
+        for target, value in zip(
+            f[:8] + b[:5],
+            (
+                est.pose, est.rate, pid.integral, pid.previous_error, pid.error_rate,
+                state.avoidance_offset_m, state.echo_points_m, 0.0 if side is None else side,
+                est.previous_counts, est.localised, pid.saturated, pid.started, state.echo_valid,
+            ),
+            strict=True,
+        ):  # fmt: skip
+            target[0] = value
 
     def step(self, t_s: float, sonar_fresh: bool) -> ControlOutputs:
         """One control period on `inputs` and `role` from `state`; returns the outputs."""

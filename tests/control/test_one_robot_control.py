@@ -3,7 +3,7 @@ the same tick on arrays made once, its state in two sets used in turn."""
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numpy as np
 
@@ -67,18 +67,18 @@ def test_one_robot_control_is_control_step_bit_for_bit() -> None:
         if tick == 30:  # a fresh start, as after a gap: encoders counted from here
             control.reset(inputs.encoder_counts)
             state = ControllerState.initial((), beams)
-            state = ControllerState(
-                estimator=type(state.estimator)(
-                    pose=state.estimator.pose,
-                    rate=state.estimator.rate,
-                    previous_counts=inputs.encoder_counts.copy(),
-                    localised=state.estimator.localised,
-                ),
-                pid=state.pid,
-                avoidance_offset_m=state.avoidance_offset_m,
-                echo_points_m=state.echo_points_m,
-                echo_valid=state.echo_valid,
+            state = replace(
+                state,
+                estimator=replace(state.estimator, previous_counts=inputs.encoder_counts.copy()),
             )
+        if tick == 45:  # a state from elsewhere (moved 5 cm, offset nudged), loaded
+            est = state.estimator
+            state = replace(
+                state,
+                estimator=replace(est, pose=est.pose + [0.05, 0.0, 0.0]),
+                avoidance_offset_m=state.avoidance_offset_m + 0.01,
+            )
+            control.load(state)
         for name in (
             "encoder_counts", "fix_pose", "fix_valid", "sonar_range_m", "peer_pose", "peer_rate",
             "peer_stamp_s", "peer_valid", "peer_is_leader", "reference_pose", "reference_rate",
