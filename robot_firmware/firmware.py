@@ -194,11 +194,9 @@ class Firmware:
         self.decoder = FrameDecoder(key, own_id=mission.index, swarm_hash=swarm_hash, run_id=run_id)
         self.control = OneRobotControl(mission.params, n, mission.rule_base)
         """The control step's arrays, made once: each tick writes its inputs there."""
-        self.role = RobotRole(
-            is_leader=np.array(mission.is_leader),
-            slot_distance_m=np.array(mission.slot_distance_m),
-            slot_angle_rad=np.array(mission.slot_angle_rad),
-        )
+        self.role: RobotRole = self.control.role
+        """This tick's role and slot (views: `_take_role` writes them in place)."""
+        self._set_role(mission.is_leader, mission.slot_distance_m, mission.slot_angle_rad)
         self.rules = mission.rule_base
         """One scheduler for the three axes."""
         self.peer_pose = np.zeros((n, 3))
@@ -334,11 +332,7 @@ class Firmware:
             self._rejoin = None
         else:
             distance_m, angle_rad = self._rejoin_slot(t_s, acting, distance_m, angle_rad)
-        self.role = RobotRole(
-            is_leader=np.array(leadership.is_leader),
-            slot_distance_m=np.array(distance_m),
-            slot_angle_rad=np.array(angle_rad),
-        )
+        self._set_role(leadership.is_leader, distance_m, angle_rad)
         self.peer_is_leader[:] = False
         if acting is not None and acting != m.index:
             self.peer_is_leader[acting] = True
@@ -347,7 +341,7 @@ class Firmware:
         # last broadcast state coasts to in `stopped_coast_s`.
         coast_s = m.leadership.stopped_coast_s
         for peer in range(len(m.names)):
-            known = peer != m.index and bool(np.isfinite(self.peer_stamp_s[peer]))
+            known = peer != m.index and math.isfinite(self.peer_stamp_s[peer])
             down = known and not leadership.is_live(peer, t_s)
             if down and not self.peer_down[peer]:
                 self.peer_pose[peer] += self.peer_rate[peer] * coast_s
@@ -355,20 +349,32 @@ class Firmware:
             self.peer_down[peer] = down
         self.peer_stamp_s[self.peer_down] = t_s
 
-    def _coasted_peers(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """The peer table as the control step takes it: a peer other than the leader silent
-        for longer than `stopped_coast_s` is taken where its last state coasts to in that time,
-        not extrapolated further (a frozen or dead robot's body has stopped by then; the
-        leader's last state still places the followers' slots until it is lost)."""
+    def _set_role(self, is_leader: bool, slot_distance_m: float, slot_angle_rad: float) -> None:
+        role = self.role
+        role.is_leader[...] = is_leader
+        role.slot_distance_m[...] = slot_distance_m
+        role.slot_angle_rad[...] = slot_angle_rad
+
+    def _coasted_peers(self, t_s: float) -> FloatArray:
+        """The peer table into the control step's inputs, and their poses: a peer other than
+        the leader silent for longer than `stopped_coast_s` is taken where its last state
+        coasts to in that time, not extrapolated further (a frozen or dead robot's body has
+        stopped by then; the leader's last state still places the followers' slots until it
+        is lost)."""
+        inputs = self.control.inputs
+        pose, rate, stamp_s = inputs.peer_pose, inputs.peer_rate, inputs.peer_stamp_s
+        pose[...] = self.peer_pose
+        rate[...] = self.peer_rate
+        stamp_s[:] = self.peer_stamp_s
         coast_s = self.mission.leadership.stopped_coast_s
-        pose, rate, stamp_s = self.peer_pose.copy(), self.peer_rate.copy(), self.peer_stamp_s.copy()
-        age_s = t_s - stamp_s
-        silent = (age_s > coast_s) & (age_s <= self.mission.params.peer_timeout_s)
-        silent &= ~self.peer_is_leader
-        pose[silent] += rate[silent] * coast_s
-        rate[silent] = 0.0
-        stamp_s[silent] = t_s
-        return pose, rate, stamp_s
+        timeout_s = self.mission.params.peer_timeout_s
+        for peer, peer_stamp_s in enumerate(self.peer_stamp_s.tolist()):
+            age_s = t_s - peer_stamp_s
+            if coast_s < age_s <= timeout_s and not self.peer_is_leader[peer]:
+                pose[peer] += rate[peer] * coast_s
+                rate[peer] = 0.0
+                stamp_s[peer] = t_s
+        return pose
 
     def _rejoin_slot(
         self, t_s: float, leader: int, distance_m: float, angle_rad: float
@@ -490,12 +496,9 @@ class Firmware:
         self._take_role(now_ns)
         reference_pose, reference_rate = self.mission.trajectory.evaluate(t_s)
         reference_pose, reference_rate = self._handed_over(
-            was_leader,
-            t_s,
-            np.array(reference_pose, dtype=float),
-            np.array(reference_rate, dtype=float),
+            was_leader, t_s, reference_pose, reference_rate
         )
-        peer_pose, peer_rate, peer_stamp_s = self._coasted_peers(t_s)
+        peer_pose = self._coasted_peers(t_s)
         if sonar_fresh:
             self._check_sonar(gaps, t_s, peer_pose)
         inputs = control.inputs
@@ -503,18 +506,11 @@ class Firmware:
         inputs.fix_pose[:] = self.fix_pose
         inputs.fix_valid[...] = fix is not None
         inputs.sonar_range_m[:] = self.sonar_gap_m
-        inputs.peer_pose[...] = peer_pose
-        inputs.peer_rate[...] = peer_rate
-        inputs.peer_stamp_s[:] = peer_stamp_s
         np.isfinite(self.peer_stamp_s, out=inputs.peer_valid)
         inputs.peer_is_leader[:] = self.peer_is_leader
         inputs.reference_pose[:] = reference_pose
         inputs.reference_rate[:] = reference_rate
         control.peer_stopped[:] = self.peer_down
-        role = control.role
-        role.is_leader[...] = self.role.is_leader
-        role.slot_distance_m[...] = self.role.slot_distance_m
-        role.slot_angle_rad[...] = self.role.slot_angle_rad
         outputs = control.step(t_s, sonar_fresh)
         # Level 5: configuration (held still while the sonar ring is deaf).
         if self.sonar_health.failed:

@@ -17,6 +17,8 @@ FloatArray = NDArray[np.float64]
 
 
 def _pose(x: FloatArray, y: FloatArray, theta: FloatArray) -> FloatArray:
+    if np.ndim(x) == np.ndim(y) == np.ndim(theta) == 0:  # one time: the firmware's every tick
+        return np.array((x, y, theta), dtype=np.float64)
     return np.stack(np.broadcast_arrays(x, y, theta), axis=-1).astype(np.float64)
 
 
