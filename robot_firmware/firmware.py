@@ -516,7 +516,7 @@ class Firmware:
         if self.sonar_health.failed:
             d.motors.set_duty((0.0, 0.0, 0.0, 0.0))
         else:
-            d.motors.set_duty(tuple(float(x) for x in outputs.duty))
+            d.motors.set_duty(outputs.duty)
         d.watchdog.kick()
         self.safe_stopped = False
         frame = None

@@ -25,6 +25,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from robot_firmware.drivers.register_port import RegisterPort
 from robot_firmware.fpga import pwm as pwm_map
@@ -89,7 +90,7 @@ class MotorDriver:
             self._write_ctrl(wheel, _CTRL_FORWARD)
         self.last_duty = (0.0,) * self.wheel_count
 
-    def set_duty(self, duty: Sequence[float]) -> None:
+    def set_duty(self, duty: Sequence[float] | NDArray[np.float64]) -> None:
         """Command a signed duty in [-1, 1] per wheel (clipped; a non-finite duty counts as 0).
 
         Writes only the CTRL and DUTY_TICKS words that differ from what was last
