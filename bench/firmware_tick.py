@@ -9,10 +9,9 @@ the drivers, levels 1 and 5) are timed inside the tick; the rest is the firmware
 
 A robot process runs the kernels compiled ahead of time (SWARM_KERNELS=aot, no numba in the
 process: robot_firmware/control/kernels.py).  The control steps of the leader's measured ticks
-are recorded and replayed in a child process of that kind, next to the JIT on the same steps in
-this one; the child also reports what importing the robot process's modules costs in memory
-(VmRSS: ru_maxrss would count the parent's pages from before the exec), next to a child
-with the JIT.
+are recorded and replayed in a child process of that kind, next to a child with the JIT on the
+same steps; each child also reports what importing the robot process's modules costs in memory
+(VmRSS: ru_maxrss would count the parent's pages from before the exec).
 
     .venv/bin/python bench/firmware_tick.py [--ticks 1000] [--repeats 3]
 """
@@ -166,21 +165,10 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
     if path == "compiled":
         # The same steps, first here (JIT), then in a robot process's kind of child (aot).
         setup = (control.params, len(scenario.robots), firmware.rules)
-        jit_spent = []
-        replay = OneRobotControl(*setup)
-        for state, inputs, role, t_s, fresh in recorded:
-            replay.load(state)
-            for name, value in inputs.items():
-                getattr(replay.inputs, name)[...] = value
-            for name, value in role.items():
-                getattr(replay.role, name)[...] = value
-            start = time.perf_counter()
-            replay.step(t_s, fresh)
-            jit_spent.append(time.perf_counter() - start)
         aot = _replay(setup, recorded, "aot")
-        jit_child = _replay(setup, recorded[:1], "jit")
+        jit_child = _replay(setup, recorded, "jit")
         replayed = {
-            "replay_jit_us": float(np.median(jit_spent)) * 1e6,
+            "replay_jit_us": jit_child["step_us"],
             "replay_aot_us": aot["step_us"],
             "imports_aot_mib": aot["imports_mib"],
             "imports_jit_mib": jit_child["imports_mib"],
@@ -230,8 +218,8 @@ def main() -> None:
         print(f"{label:34}{median['compiled'][key]:>10.1f}{median['oracle'][key]:>10.1f}")
     compiled = median["compiled"]
     print()
-    print("# the leader's control steps replayed: numba's JIT here, the ahead-of-time module in a")
-    print("# child process as a robot runs it (SWARM_KERNELS=aot)")
+    print("# the leader's control steps replayed in child processes: numba's JIT, and the")
+    print("# ahead-of-time module as a robot runs it (SWARM_KERNELS=aot)")
     print(f"{'':34}{'jit':>10}{'aot':>10}")
     print(
         f"{'control step, median (us)':34}{compiled['replay_jit_us']:>10.1f}"

@@ -772,6 +772,25 @@ def control_step(
     return new_state, outputs
 
 
+def output_rows(
+    rows: int, beams: int, peers: int
+) -> tuple[tuple[FloatArray, ...], tuple[NDArray[Any], ...]]:
+    """Zeroed arrays for `control_robots`' outputs (out_f, out_b) of `rows` robots, the first
+    eight and five of which are a state set: the next tick reads them as state_f and state_b."""
+    floats = (
+        (3,), (3,), (3,), (3,), (3,), (2,), (beams, 2), (peers,), (4,), (4,), (3,), (3,), (3,),
+        (3,), (3,), (3,), (2,),
+    )  # fmt: skip
+    flags = ((4,), (), (), (), (beams,), ())
+    return (
+        tuple(np.zeros((rows,) + core) for core in floats),
+        tuple(
+            np.zeros((rows,) + core, dtype=np.int64 if i == 0 else np.bool_)
+            for i, core in enumerate(flags)
+        ),
+    )
+
+
 class OneRobotControl:
     """`control_step` for one robot, on arrays made once: what the firmware runs every tick.
 
@@ -793,21 +812,7 @@ class OneRobotControl:
         beams = len(params.sonar_beam_angles_rad)
         i8, b1 = np.int64, np.bool_
 
-        def state_set() -> tuple[tuple[FloatArray, ...], tuple[NDArray[Any], ...]]:
-            floats = (
-                (3,), (3,), (3,), (3,), (3,), (2,), (beams, 2), (peers,), (4,), (4,), (3,), (3,),
-                (3,), (3,), (3,), (3,), (2,),
-            )  # fmt: skip
-            flags = ((4,), (), (), (), (beams,), ())
-            return (
-                tuple(np.zeros((1,) + core) for core in floats),
-                tuple(
-                    np.zeros((1,) + core, dtype=i8 if i == 0 else b1)
-                    for i, core in enumerate(flags)
-                ),
-            )
-
-        self._sets = (state_set(), state_set())
+        self._sets = (output_rows(1, beams, peers), output_rows(1, beams, peers))
         self._current = 0
         self._inputs_f = (
             np.zeros((1, 3)), np.full((1, beams), np.inf), np.zeros((1, peers, 3)),

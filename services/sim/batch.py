@@ -32,7 +32,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_firmware.control.controller import ControllerParams, ControllerState, RobotRole
+from robot_firmware.control.controller import (
+    ControllerParams,
+    ControllerState,
+    RobotRole,
+    output_rows,
+)
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from robot_firmware.control.rows import rows_of
 from services.sim.ticks import run_ticks
@@ -315,21 +320,7 @@ class _TickLoop:
             obstacle_radii,
         )
 
-        def state_set() -> tuple[tuple[NDArray[np.generic], ...], tuple[NDArray[np.generic], ...]]:
-            floats = (
-                (3,), (3,), (3,), (3,), (3,), (2,), (beams, 2), (n,), (4,), (4,), (3,), (3,),
-                (3,), (3,), (3,), (3,), (2,),
-            )  # fmt: skip
-            flags = ((4,), (), (), (), (beams,), ())
-            return (
-                tuple(np.zeros((rows,) + core) for core in floats),
-                tuple(
-                    np.zeros((rows,) + core, dtype=i8 if i == 0 else b1)
-                    for i, core in enumerate(flags)
-                ),
-            )
-
-        set_a, set_b = state_set(), state_set()
+        set_a, set_b = output_rows(rows, beams, n), output_rows(rows, beams, n)
         initial = ControllerState.initial(batch + (n,), beams)
         est, pid = initial.estimator, initial.pid
         side = np.zeros(batch + (n, n))
