@@ -813,6 +813,8 @@ class OneRobotControl:
         i8, b1 = np.int64, np.bool_
 
         self._sets = (output_rows(1, beams, peers), output_rows(1, beams, peers))
+        self._reads = tuple((f[:8], b[:5]) for f, b in self._sets)
+        """Each set's state_f and state_b, as the kernel reads them."""
         self._current = 0
         self._inputs_f = (
             np.zeros((1, 3)), np.full((1, beams), np.inf), np.zeros((1, peers, 3)),
@@ -929,11 +931,11 @@ class OneRobotControl:
 
     def step(self, t_s: float, sonar_fresh: bool) -> ControlOutputs:
         """One control period on `inputs` and `role` from `state`; returns the outputs."""
-        read_f, read_b = self._sets[self._current]
+        read_f, read_b = self._reads[self._current]
         written = 1 - self._current
         write_f, write_b = self._sets[written]
         control_robots(
-            0, 1, self.constants, t_s, sonar_fresh, read_f[:8], read_b[:5], self._inputs_f,
+            0, 1, self.constants, t_s, sonar_fresh, read_f, read_b, self._inputs_f,
             self._inputs_b, self._rules, write_f, write_b, self._scratch_ok, self._scratch_pose,
             self._origin,
         )  # fmt: skip

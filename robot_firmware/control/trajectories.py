@@ -36,6 +36,14 @@ class CircleTrajectory:
         t = np.asarray(t_s, dtype=np.float64)
         a = self.angular_rate_radps * t + self.phase_rad
         r, w = self.radius_m, self.angular_rate_radps
+        if t.ndim == 0:  # one time, the firmware's every tick: the same arithmetic, unstacked
+            cos_a, sin_a = np.cos(a), np.sin(a)
+            return (
+                np.array(
+                    (self.centre_m[0] + r * cos_a, self.centre_m[1] + r * sin_a, self.heading_rad)
+                ),
+                np.array((-r * w * sin_a, r * w * cos_a, 0.0)),
+            )
         pose = _pose(
             self.centre_m[0] + r * np.cos(a),
             self.centre_m[1] + r * np.sin(a),

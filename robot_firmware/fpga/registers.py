@@ -243,6 +243,16 @@ class Peripheral:
                 raise ValueError(f"{name}.{reg.name}: affects unknown registers {unknown}")
         self._values: dict[int, int] = {reg.offset: reg.reset for reg in self.registers}
         self._write_actions: dict[int, Callable[[int], None]] = {}
+        self._reads: dict[int, bool] = {
+            reg.offset: reg.access.clears_on_read for reg in self.registers if reg.access.readable
+        }
+        """Readable offsets, and whether a read clears the register (looked up once here)."""
+        self._writes: dict[int, tuple[int, Callable[[dict[int, int], Register, int], None]]] = {
+            reg.offset: (reg.mask, _WRITE_SEMANTICS[reg.access])
+            for reg in self.registers
+            if reg.access.writable
+        }
+        """Writable offsets: the register's mask and its write semantics."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
@@ -261,23 +271,26 @@ class Peripheral:
 
     def read(self, offset: int) -> int:
         """A 32-bit processor read; RC registers clear as they are read."""
-        reg = self._declared(offset)
-        if not reg.access.readable:
+        clears = self._reads.get(offset)
+        if clears is None:
+            reg = self._declared(offset)
             raise RegisterAccessError(f"{self.name}.{reg.name} is {reg.access.value}")
         value = self._values[offset]
-        if reg.access.clears_on_read:
+        if clears:
             self._values[offset] = 0
         return value
 
     def write(self, offset: int, value: int) -> None:
         """A 32-bit processor write; reserved bits of `value` are dropped."""
-        reg = self._declared(offset)
-        if not reg.access.writable:
+        plan = self._writes.get(offset)
+        if plan is None:
+            reg = self._declared(offset)
             raise RegisterAccessError(f"{self.name}.{reg.name} is {reg.access.value}")
         if not 0 <= value <= WORD_MASK:
             raise RegisterAccessError(f"{value:#x} does not fit 32 bits")
-        masked = value & reg.mask
-        _WRITE_SEMANTICS[reg.access](self._values, reg, masked)
+        mask, semantics = plan
+        masked = value & mask
+        semantics(self._values, self._by_offset[offset], masked)
         action = self._write_actions.get(offset)
         if action is not None:
             action(masked)

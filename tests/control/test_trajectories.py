@@ -73,3 +73,13 @@ def test_open_polyline_stops_at_last_waypoint() -> None:
 def test_polyline_rejects_repeated_waypoints() -> None:
     with pytest.raises(ValueError, match="differ"):
         PolylineTrajectory(waypoints_m=((0, 0), (0, 0), (1, 1)))
+
+
+def test_one_time_gives_the_same_pose_and_rate_as_that_time_in_an_array() -> None:
+    circle = CircleTrajectory(phase_rad=0.3, centre_m=(0.2, -0.1))
+    times = np.linspace(0.0, 100.0, 2001)
+    poses, rates = circle.evaluate(times)
+    for k, t_s in enumerate(times):
+        pose, rate = circle.evaluate(float(t_s))
+        np.testing.assert_array_equal(pose, poses[k])
+        np.testing.assert_array_equal(rate, rates[k])
