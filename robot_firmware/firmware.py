@@ -347,7 +347,8 @@ class Firmware:
                 self.peer_pose[peer] += self.peer_rate[peer] * coast_s
                 self.peer_rate[peer] = 0.0
             self.peer_down[peer] = down
-        self.peer_stamp_s[self.peer_down] = t_s
+            if down:
+                self.peer_stamp_s[peer] = t_s
 
     def _set_role(self, is_leader: bool, slot_distance_m: float, slot_angle_rad: float) -> None:
         role = self.role
@@ -535,11 +536,13 @@ class Firmware:
         est = self.state.estimator
         evidence: list[float] = []
         if bool(est.localised):
-            age_s = t_s - self.peer_stamp_s
-            known = np.isfinite(self.peer_stamp_s) & (age_s <= self.mission.params.peer_timeout_s)
-            centre_m = np.hypot(peer_pose[:, 0] - est.pose[0], peer_pose[:, 1] - est.pose[1])
-            gap_m = centre_m - 2.0 * self.mission.params.body_radius_m
-            evidence = [float(g) for g in gap_m[known]]
+            params = self.mission.params
+            x_m, y_m = est.pose[:2].tolist()
+            for peer, (px_m, py_m) in enumerate(peer_pose[:, :2].tolist()):
+                stamp_s = float(self.peer_stamp_s[peer])
+                if math.isfinite(stamp_s) and t_s - stamp_s <= params.peer_timeout_s:
+                    gap_m = math.hypot(px_m - x_m, py_m - y_m) - 2.0 * params.body_radius_m
+                    evidence.append(gap_m)
         was_failed = self.sonar_health.failed
         if self.sonar_health.sweep(gaps_m, evidence) == was_failed:
             return
