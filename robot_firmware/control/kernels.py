@@ -86,7 +86,16 @@ def module_paths(hash_: str, directory: Path | None = None) -> tuple[Path, Path]
 
 
 class AotKernel:
-    """A function of the ahead-of-time module, called only with the types it was built for."""
+    """A function of the ahead-of-time module, called only with the types it was built for.
+
+    Every call's arguments are checked against the built types (`type_check`): a wrong dtype
+    would read past an array.  The firmware passes the same tuples of the same arrays every
+    tick (robot_firmware/control/controller.py `OneRobotControl`), so a call whose tuples and
+    arrays are the very objects of one already checked has only its scalars checked: those
+    objects are kept (so their ids stay theirs), and nothing here changes an array's dtype,
+    dimensions or strides in place.  At most `TRUSTED_CALLS` such sets are kept."""
+
+    TRUSTED_CALLS = 4
 
     def __init__(
         self, compiled: Callable[..., Any], spec: list[ArgSpec], py_func: Callable[..., Any]
@@ -95,14 +104,28 @@ class AotKernel:
         self.spec = spec
         self.py_func = py_func
         self.matches = type_check(spec)
+        self._objects = [i for i, item in enumerate(spec) if item[0] in ("a", "t")]
+        scalars = [i for i, item in enumerate(spec) if item[0] not in ("a", "t")]
+        self._scalars_match = type_check([spec[i] for i in scalars])
+        self._scalar_positions = scalars
+        self._trusted: dict[tuple[int, ...], tuple[Any, ...]] = {}
         self.__doc__ = py_func.__doc__
         self.__name__ = py_func.__name__
         self.mismatches = 0
         """Calls that ran the Python function because an argument's type differed."""
 
     def __call__(self, *args: Any) -> Any:
-        if self.matches(*args):
-            return self.compiled(*args)
+        if len(args) == len(self.spec):
+            key = tuple([id(args[i]) for i in self._objects])
+            if key in self._trusted and self._scalars_match(
+                *[args[i] for i in self._scalar_positions]
+            ):
+                return self.compiled(*args)
+            if self.matches(*args):
+                if len(self._trusted) >= self.TRUSTED_CALLS:
+                    self._trusted.pop(next(iter(self._trusted)))
+                self._trusted[key] = tuple(args[i] for i in self._objects)
+                return self.compiled(*args)
         self.mismatches += 1
         return self.py_func(*args)
 

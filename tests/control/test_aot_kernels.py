@@ -184,6 +184,25 @@ def test_call_with_other_types_runs_the_python_function() -> None:
     assert len(compiled_calls) == 1
 
 
+def test_arguments_seen_checked_are_trusted_but_their_scalars_are_checked_every_call() -> None:
+    calls: list[str] = []
+
+    def compiled(a: object, t: object, x: object) -> str:
+        calls.append("compiled")
+        return "compiled"
+
+    spec = [["a", "<f8", 1], ["t", [["a", "<i8", 1]]], ["f"]]
+    kernel = kernels.AotKernel(compiled, spec, lambda a, t, x: "python")
+    array, pair = np.zeros(3), (np.zeros(2, dtype=np.int64),)
+    for step in range(3):
+        assert kernel(array, pair, 0.1 * step) == "compiled"
+    assert kernel(array, pair, None) == "python"  # a trusted set, a scalar of another type
+    for _ in range(10):  # new tuples each call: checked in full, and only a few kept
+        assert kernel(array, (np.zeros(2, dtype=np.int64),), 1.0) == "compiled"
+    assert len(kernel._trusted) <= kernels.AotKernel.TRUSTED_CALLS
+    assert kernel(array, (np.zeros(2),), 1.0) == "python"  # a float array where ints go
+
+
 ROBOT_IMPORTS = """
 import sys
 import services.cli.main
