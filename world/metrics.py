@@ -53,6 +53,8 @@ BoolArray = NDArray[np.bool_]
 def _onsets(taken: BoolArray, previous: BoolArray | None, n: int) -> list[tuple[int, int]]:
     """The contacts of one world that began at this sample, as counted in `collisions`: (i, j)
     for robot i touching robot j > i, or obstacle j - n when j >= n."""
+    if not taken.any():
+        return []
     began = taken if previous is None else taken & ~previous.reshape(taken.shape)
     return [(int(i), int(j)) for i, j in zip(*np.nonzero(began), strict=True) if j >= n or j > i]
 
@@ -392,6 +394,10 @@ class MetricsAccumulator:
         self.sum_sq_heading_all_lead = np.zeros(shape)
         self.count_all_lead = np.zeros(shape)
         self._previous_contacts: BoolArray | None = None
+        self._kernel_arrays: (
+            tuple[int, tuple[NDArray[np.generic], ...], tuple[tuple[NDArray[np.generic], ...], ...]]
+            | None
+        ) = None
         self.last_onsets: list[tuple[int, int]] = []
         """The contacts that began at the last sample, one run only (else empty): (i, j) for
         robot i touching robot j > i, or obstacle j - N when j >= N."""
@@ -547,12 +553,27 @@ class MetricsAccumulator:
 
     def kernel_arrays(self, worlds: int) -> tuple[tuple[NDArray[np.generic], ...], ...]:
         """The per-robot (worlds, N) and per-run (worlds,) arrays as `accumulate_samples` takes
-        them: views that it updates in place."""
+        them: views that it updates in place (made again only when an array was replaced, as
+        when a checkpoint is restored)."""
+        arrays = tuple(getattr(self, name) for name in self.ROBOT_FIELDS + self.RUN_FIELDS)
+        cached = self._kernel_arrays
+        if (
+            cached is not None
+            and cached[0] == worlds
+            and all(a is b for a, b in zip(cached[1], arrays, strict=True))
+        ):
+            return cached[2]
         n = len(self.layout.names)
-        return (
+        views = (
             tuple(self._field_rows(name, (worlds, n)) for name in self.ROBOT_FIELDS),
             tuple(self._field_rows(name, (worlds,)) for name in self.RUN_FIELDS),
         )
+        self._kernel_arrays = (
+            worlds,
+            tuple(getattr(self, name) for name in self.ROBOT_FIELDS + self.RUN_FIELDS),
+            views,
+        )
+        return views
 
     def samples_taken(self, t_s: float, contacts: BoolArray) -> None:
         """Samples up to t_s were added outside `update` (on `kernel_arrays`), the last one with
