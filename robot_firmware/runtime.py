@@ -429,7 +429,10 @@ class RobotProcess:
         return fields
 
     def telemetry(self, now_ns: int) -> TelemetryMessage:
-        return TelemetryMessage(**self._telemetry_fields(now_ns))
+        """This robot's telemetry now: built from its own state, field by field with the
+        message's types, so it is not validated again on the way out (the readers validate
+        it); at 20 Hz the validation cost a tenth of the robot's loop."""
+        return TelemetryMessage.model_construct(**self._telemetry_fields(now_ns))
 
     def _params_request(self, payload: bytes) -> ParamsReply | AdminError:
         """Get the fuzzy scheduler's parameters, or replace them with a new parameter file.

@@ -18,6 +18,7 @@ from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, RobotMission
 from robot_firmware.fpga.fabric import Actuation, Fabric, FabricConfig
 from robot_firmware.net.frames import RadioFrame, Role, encode, initial_sequence, key_from_secret
+from robot_firmware.net.messages import TelemetryMessage
 from robot_firmware.net.wire import FixSample, SenseMessage, encode_sense, parse_act
 from robot_firmware.pins import apply_sense
 from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler
@@ -378,6 +379,13 @@ def test_robot_process_publishes_a_zero_duty_act_message_when_sense_stops_and_re
     back = parse_act(robot.act.payloads[-1])
     assert not isinstance(back, str)
     assert all(back.enabled) and not back.watchdog_expired and any(d != 0.0 for d in back.duty)
+    # The telemetry, built without validation, reads back as the validated message it is.
+    sent = TelemetryMessage.model_validate_json(robot.telemetry.payloads[-1])
+    assert sent.active and sent.localised and sent.kp is not None
+    built = process.telemetry(700 * MS)
+    assert TelemetryMessage.model_validate_json(built.to_json_bytes()) == TelemetryMessage(
+        **process._telemetry_fields(700 * MS)
+    )
 
 
 def _lone_firmware(name: str = "robot2") -> tuple[Fabric, Firmware]:
