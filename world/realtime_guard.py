@@ -11,11 +11,15 @@ tick of the newest sense message it had applied when it ran that control tick
 (robot_firmware/tick_scheduler.py): a robot that answered tick a has acted on its pins at T(a),
 for the control period [T(a), T(a + 1)).
 
-**The rule.**  The world's simulated time never passes T(a_min + 1) + P, where a_min is the
-oldest answer among the robots it waits for: at most one control period beyond the end of the
-period the slowest robot has answered.  (A lead of zero would hold the world every period for
-a robot whose tick falls late in the period; one period of lead is the jitter a robot on an
-unloaded host needs, and a starved one exceeds.)
+**The rule.**  The world's simulated time never passes T(a_min + 1) + L·P, where a_min is the
+oldest answer among the robots it waits for and L the lead in periods: at most L control
+periods beyond the end of the period the slowest robot has answered.  A lead of zero would hold
+the world every period for a robot whose tick falls late in the period.  The world's default is
+two periods (`WorldConfig.starvation_lead_periods`): with one, the scheduling jitter of a host
+that runs six robots, a world and a router on two cores held the world often enough to slow it
+to 0.96 of real time while every robot still met 99.6 % of its deadlines; two periods (a robot
+drives at most 20 ms on a command that old, 1.8 cm at full speed) are what such a host needs,
+and a starved robot still exceeds them (docs/scale.md, "Real-time scale").
 
 **The clock.**  Simulated time is the wall clock minus an offset, capped at that horizon:
 `t_sim = min(mono - offset, horizon)`.  While the cap binds (the world is *held*), the offset
@@ -54,7 +58,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 NS_PER_S = 1_000_000_000
-LEAD_PERIODS = 1
+LEAD_PERIODS = 2
 """How many control periods simulated time may run beyond the slowest robot's answered one."""
 
 

@@ -147,7 +147,7 @@ from world.faults import (
 )
 from world.lockstep import LockstepBarrier, LockstepPacer, LockstepProfile
 from world.metrics import FormationLayout, reference_points, sample_errors
-from world.realtime_guard import RealTimeGuard
+from world.realtime_guard import LEAD_PERIODS, RealTimeGuard
 from world.summary import build_summary, summarise_events, write_json_atomically
 
 log = logging.getLogger("swarm.world")
@@ -207,6 +207,9 @@ class WorldConfig(LayeredSettings):
     on without it and waits for it again from the next tick (a message to or from it was lost,
     world/lockstep.py "Lost messages").  No answer of a run without lost messages comes this
     late, so such a run replays exactly."""
+    starvation_lead_periods: int = Field(default=LEAD_PERIODS, ge=0, le=10)
+    """Real time: how many control periods simulated time may run beyond the period the
+    slowest robot has answered (world/realtime_guard.py, "The rule")."""
     starvation_hold_limit_s: float = Field(default=0.5, gt=0.0, le=1.0)
     """Real time: the longest the world waits for one robot before it goes on without it
     (braking its body): at most the robots' liveliness lease (1 s)."""
@@ -296,6 +299,7 @@ class WorldProcess:
             self.names,
             self.period_ns,
             round(config.starvation_hold_limit_s * NS_PER_S),
+            lead_periods=config.starvation_lead_periods,
             enabled=config.starvation_guard and not config.lockstep,
         )
         """Real time: holds simulated time back for starved robots (world/realtime_guard.py)."""

@@ -12,11 +12,14 @@ PERIOD_NS = 10_000_000
 MS = 1_000_000
 HOLD_LIMIT_NS = 500 * MS
 ROBOTS = ("robot1", "robot2", "robot3")
+LEAD = 1
+"""The tests work the rule through with one period of lead (the world's default is
+`realtime_guard.LEAD_PERIODS`); `test_the_lead_sets_the_horizon` takes others."""
 
 
-def running_guard(enabled: bool = True) -> RealTimeGuard:
+def running_guard(enabled: bool = True, lead: int = LEAD) -> RealTimeGuard:
     """Three live robots that have answered tick 0; time starts at 0 with tick 0 due at 0."""
-    guard = RealTimeGuard(ROBOTS, PERIOD_NS, HOLD_LIMIT_NS, enabled=enabled)
+    guard = RealTimeGuard(ROBOTS, PERIOD_NS, HOLD_LIMIT_NS, lead_periods=lead, enabled=enabled)
     guard.start(tick=0, tick_time_ns=0, sim_ns=0, mono_ns=0)
     guard.published(0)
     for name in ROBOTS:
@@ -58,6 +61,18 @@ def test_time_runs_with_the_wall_clock_while_every_robot_keeps_up() -> None:
             guard.answer(name, k)
         assert guard.sim_time_ns(k * PERIOD_NS + 3 * MS) == k * PERIOD_NS + 3 * MS
     assert not guard.holding and guard.stats().held_s == 0.0
+
+
+@pytest.mark.parametrize("lead", [0, 2, 3])
+def test_the_lead_sets_the_horizon(lead: int) -> None:
+    guard = running_guard(lead=lead)
+    publish_through(guard, 5)
+    for name in ("robot1", "robot3"):
+        guard.answer(name, 5)
+    guard.answer("robot2", 3)
+    # tick 3's period ends at 40 ms; `lead` periods beyond it
+    assert guard.horizon_ns() == (40 + 10 * lead) * MS
+    assert guard.sim_time_ns(200 * MS) == (40 + 10 * lead) * MS
 
 
 def test_time_stops_one_period_past_the_slowest_robots_answered_period() -> None:
@@ -193,7 +208,7 @@ def test_with_the_guard_off_the_clock_is_the_wall_clock() -> None:
 
 
 def test_a_resumed_world_maps_ticks_from_where_it_resumed() -> None:
-    guard = RealTimeGuard(ROBOTS, PERIOD_NS, HOLD_LIMIT_NS)
+    guard = RealTimeGuard(ROBOTS, PERIOD_NS, HOLD_LIMIT_NS, lead_periods=LEAD)
     guard.start(tick=4_200, tick_time_ns=42_000 * MS, sim_ns=41_995 * MS, mono_ns=7 * MS)
     assert guard.tick_time_ns(4_210) == 42_100 * MS
     guard.published(4_200)
