@@ -247,14 +247,14 @@ class Firmware:
         """The control state the next tick starts from (views into `control`'s arrays)."""
         return self.control.state
 
-    def sonar_echo_points_m(self) -> list[list[float]]:
+    def sonar_echo_points_m(self) -> tuple[tuple[float, float], ...]:
         """Where the last sonar sweep puts echoes, in the world, seen from the estimated pose:
-        one [x, y] per transducer that heard one (all echoes, not only those the APF uses)."""
+        one (x, y) per transducer that heard one (all echoes, not only those the APF uses)."""
         heard = np.isfinite(self.sonar_gap_m)
         points = sonar_beam_points(
             self.state.estimator.pose, np.where(heard, self.sonar_gap_m, 0.0), self.mission.params
         )
-        return [[float(x), float(y)] for x, y in points[heard]]
+        return tuple((float(x), float(y)) for x, y in points[heard])
 
     def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
         """Use another fuzzy scheduler from the next tick on (call between ticks)."""

@@ -410,7 +410,7 @@ class RobotProcess:
             "sonar_range_m": tuple(
                 float(g) if np.isfinite(g) else None for g in self.firmware.sonar_gap_m
             ),
-            "sonar_echoes_m": tuple(self.firmware.sonar_echo_points_m()),
+            "sonar_echoes_m": self.firmware.sonar_echo_points_m(),
             "register_faults": self.fabric.faults.labels,
         }
         if report is not None:

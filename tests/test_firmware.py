@@ -324,11 +324,15 @@ def _robot_credentials(tmp_path_factory: pytest.TempPathFactory) -> None:
     robot_credentials(tmp_path_factory.mktemp("credentials"))
 
 
-def _sense_with_fix(t_ns: int, sonar_count: int) -> bytes:
+def _sense_with_fix(t_ns: int, sonar_count: int, echo_time_s: float | None = None) -> bytes:
+    """A sense message with a positioning fix at the origin; echo_time_s: every other
+    transducer hears an echo after that long, the rest nothing."""
     return encode_sense(
         SenseMessage(
             encoder_counts=(0, 0, 0, 0),
-            sonar_echo_times_s=(None,) * sonar_count,
+            sonar_echo_times_s=tuple(
+                echo_time_s if i % 2 == 0 else None for i in range(sonar_count)
+            ),
             fix=FixSample(0.0, 0.0, 0.0, t_ns),
             t_ns=t_ns,
         )
@@ -344,10 +348,10 @@ def test_robot_process_publishes_a_zero_duty_act_message_when_sense_stops_and_re
     sonar_count = process.mission.sonar_count
     acts_at: list[tuple[int, int]] = []  # (monotonic ms, index of the act message)
 
-    def period(now_ms: int, sense: bool) -> None:
+    def period(now_ms: int, sense: bool, echo_time_s: float | None = None) -> None:
         now_ns = now_ms * MS
         if sense:
-            payload = _sense_with_fix(1_000 * MS + now_ns, sonar_count)
+            payload = _sense_with_fix(1_000 * MS + now_ns, sonar_count, echo_time_s)
             process._sense.append((payload, now_ns))
         process._take_sense()
         decision = process.scheduler.poll(now_ns, len(process._frames))
@@ -375,17 +379,19 @@ def test_robot_process_publishes_a_zero_duty_act_message_when_sense_stops_and_re
     period(600, sense=True)  # the world is back
     assert not process.scheduler.safe_stopped and not process.firmware.safe_stopped
     for now_ms in range(610, 700, 10):
-        period(now_ms, sense=True)
+        period(now_ms, sense=True, echo_time_s=0.004)
     back = parse_act(robot.act.payloads[-1])
     assert not isinstance(back, str)
     assert all(back.enabled) and not back.watchdog_expired and any(d != 0.0 for d in back.duty)
-    # The telemetry, built without validation, reads back as the validated message it is.
+    # The telemetry, built without validation, holds every field with the type validation
+    # gives it (a list for a tuple would warn when it is written) and reads back as itself.
     sent = TelemetryMessage.model_validate_json(robot.telemetry.payloads[-1])
     assert sent.active and sent.localised and sent.kp is not None
     built = process.telemetry(700 * MS)
-    assert TelemetryMessage.model_validate_json(built.to_json_bytes()) == TelemetryMessage(
-        **process._telemetry_fields(700 * MS)
-    )
+    assert built.sonar_echoes_m, "the sonar should have heard the echoes"
+    validated = TelemetryMessage(**process._telemetry_fields(700 * MS))
+    assert built == validated
+    assert TelemetryMessage.model_validate_json(built.to_json_bytes()) == validated
 
 
 def _lone_firmware(name: str = "robot2") -> tuple[Fabric, Firmware]:
