@@ -186,6 +186,9 @@ def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
         )
     )
     assert set(status["processes"]) == {"router", "world", "robot1", "robot2", "robot3"}
+    # A running process may still be importing; a robot answers once it is up (and the world
+    # counts it live from then on).
+    live_swarm.wait_for(lambda: len(_world_status(live_swarm)["live"]) == len(ROBOTS))
 
     dump = live_swarm.cli("regs", "robot1")
     assert dump.returncode == 0, dump.stderr
