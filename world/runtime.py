@@ -7,13 +7,13 @@ publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what 
 
 Clock modes:
 * real time (default): simulation time is wall time, except that the starvation guard
-  (world/realtime_guard.py) holds it back so that it never runs more than one control period
-  beyond the period the slowest live robot has answered (its act messages carry the tick of
-  the newest sense message it had): a starved host slows the run down (real-time factor < 1)
-  instead of letting robots drive blind, and a frozen robot holds it for at most
-  `starvation_hold_limit_s`.  The physics is integrated exactly from event to event (duty
-  change, frame due, sense due), sense messages go out every control period (repeated, with
-  no new fix, while the time is held); a body whose last act message is older than
+  (world/realtime_guard.py) holds it back so that it never runs more than two control periods
+  (`starvation_lead_periods`) beyond the period the slowest live robot has answered (its act
+  messages carry the tick of the newest sense message it had): a starved host slows the run
+  down (real-time factor < 1) instead of letting robots drive blind, and a frozen robot holds
+  it for at most `starvation_hold_limit_s`.  The physics is integrated exactly from event to
+  event (duty change, frame due, sense due), sense messages go out every control period
+  (repeated, with no new fix, while the time is held); a body whose last act message is older than
   `act_timeout_ms` of simulated time, or that the guard stopped waiting for, is braked;
 * lockstep: per control period the world sends every robot its sense message with the tick
   number and waits until every *live* robot (liveliness token present) has answered that tick,
@@ -194,8 +194,9 @@ class WorldConfig(LayeredSettings):
     """Lockstep only: at most this many simulated seconds per wall second (None: as fast as
     the robots answer)."""
     starvation_guard: bool = True
-    """Real time: simulated time never runs more than a control period beyond the period the
-    slowest live robot has answered; the run slows down instead (world/realtime_guard.py).
+    """Real time: simulated time never runs more than `starvation_lead_periods` control periods
+    beyond the period the slowest live robot has answered; the run slows down instead
+    (world/realtime_guard.py).
     Off: simulated time is the wall clock, whatever the robots do."""
     lockstep_token_grace_s: PositiveFloat = 5.0
     """Lockstep: how long (wall time) the world waits for a robot whose liveliness token went,
@@ -895,11 +896,11 @@ class WorldProcess:
         self, session: zenoh.Session, clock_pub: zenoh.Publisher, truth_pub: zenoh.Publisher
     ) -> None:
         """Simulation time is wall time since start, held back by the starvation guard
-        (world/realtime_guard.py): never more than a control period beyond the period the
-        slowest live robot has answered.  While it is held, the newest sense messages are
-        repeated every period.  The physics is integrated exactly from event to event (an act
-        changes a duty, a frame falls due, a sense message is due): `step_bodies` is exact
-        for a held duty, so this equals a 1 kHz loop without its cost."""
+        (world/realtime_guard.py): never more than `starvation_lead_periods` control periods
+        beyond the period the slowest live robot has answered.  While it is held, the newest
+        sense messages are repeated every period.  The physics is integrated exactly from event
+        to event (an act changes a duty, a frame falls due, a sense message is due):
+        `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost."""
         end = self._end_tick()
         guard = self.guard
         # A resumed world carries on from the checkpoint's time.
