@@ -71,6 +71,11 @@ class LinkTable:
             range_m=profile.range_m,
         )
 
+    @property
+    def uniform(self) -> bool:
+        """Whether every link has the same profile (every field a scalar)."""
+        return not any(isinstance(getattr(self, f.name), np.ndarray) for f in fields(self))
+
     def rows(self, senders: IntArray) -> LinkTable:
         """The links from `senders` (S,) to every robot: array fields of shape (S, N)."""
         picked: dict[str, Any] = {
@@ -163,6 +168,38 @@ def _delivery_rows(
     return delivered, delay_s
 
 
+@njit(cache=True)
+def _uniform_rows(
+    u_state: FloatArray,
+    in_bad: BoolArray,
+    u_loss: FloatArray,
+    u_delay: FloatArray,
+    length_m: FloatArray,
+    burst: bool,
+    good_to_bad: float,
+    bad_to_good: float,
+    loss: float,
+    loss_in_good: float,
+    loss_in_bad: float,
+    cut: bool,
+    range_m: float,
+    latency_ms: float,
+    jitter_ms: float,
+) -> tuple[BoolArray, FloatArray, BoolArray]:
+    """`_state_rows` then `_delivery_rows` for links that all share one profile (scalars)."""
+    links = u_loss.shape[0]
+    bad = np.empty(links, dtype=np.bool_)
+    delivered = np.empty(links, dtype=np.bool_)
+    delay_s = np.empty(links)
+    for i in range(links):
+        bad[i] = next_link_state(u_state[i], in_bad[i], burst, good_to_bad, bad_to_good)
+        delivered[i], delay_s[i] = link_delivery(
+            u_loss[i], u_delay[i], bad[i], burst, loss, loss_in_good, loss_in_bad, cut,
+            length_m[i], range_m, latency_ms, jitter_ms,
+        )  # fmt: skip
+    return delivered, delay_s, bad
+
+
 def _flat(arrays: list[ArrayLike], dtypes: list[type]) -> tuple[tuple[int, ...], list[Any]]:
     """Broadcast `arrays` together; their shape and each one flat, contiguous, of its dtype."""
     full = np.broadcast_arrays(*arrays)
@@ -186,14 +223,30 @@ def draw_links(
     u_loss = rng.random(shape)
     u_delay = rng.random(shape)
     u_state = rng.random(shape) if np.any(table.burst) else np.zeros(shape)
+    length = 0.0 if link_length_m is None else link_length_m
+    range_m = math.inf if table.range_m is None else float(table.range_m)
+    if table.uniform and np.shape(length) in ((), shape):
+        # One profile for every link (no network fault): no broadcasting needed, which would
+        # cost the world's every frame several times the draws themselves.
+        delivered, delay_s, bad = _uniform_rows(
+            u_state.reshape(-1), np.ascontiguousarray(in_bad_state, dtype=np.bool_).reshape(-1),
+            u_loss.reshape(-1), u_delay.reshape(-1),
+            np.ascontiguousarray(np.broadcast_to(length, shape), dtype=np.float64).reshape(-1),
+            bool(table.burst), float(table.good_to_bad), float(table.bad_to_good),
+            float(table.loss), float(table.loss_in_good), float(table.loss_in_bad),
+            bool(table.cut), range_m, float(table.latency_ms), float(table.jitter_ms),
+        )  # fmt: skip
+        return LinkDraw(
+            delivered=delivered.reshape(shape),
+            delay_s=delay_s.reshape(shape),
+            in_bad_state=bad.reshape(shape),
+        )
     f8, b1 = np.float64, np.bool_
     state_shape, (u_s, bad_in, burst, good_to_bad, bad_to_good) = _flat(
         [u_state, in_bad_state, table.burst, table.good_to_bad, table.bad_to_good],
         [f8, b1, b1, f8, f8],
     )
     bad = _state_rows(u_s, bad_in, burst, good_to_bad, bad_to_good).reshape(state_shape)
-    length = 0.0 if link_length_m is None else link_length_m
-    range_m = math.inf if table.range_m is None else float(table.range_m)
     fate_shape, fate_rows = _flat(
         [
             u_loss,

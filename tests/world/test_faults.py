@@ -4,6 +4,7 @@ a network."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -162,14 +163,26 @@ def test_a_partition_alone_draws_what_the_profile_draws_but_on_the_cut_links() -
 
 
 def test_a_uniform_table_draws_exactly_what_its_profile_draws() -> None:
+    """A profile, the table of it (both drawn on the path for one profile) and a table with the
+    profile's values in every link's own entry (the general path) draw the same fates."""
     for profile in (*PROFILES.values(), LinkProfile(latency_ms=5.0, range_m=2.0)):
         state = np.random.default_rng(1).random((4, 3)) < 0.3
         length = np.random.default_rng(2).random((4, 3)) * 4.0
+        table = LinkTable.from_profile(profile)
+        per_link = dataclasses.replace(
+            table,
+            latency_ms=np.full((4, 3), table.latency_ms),
+            loss=np.full((4, 3), table.loss),
+            burst=np.full((4, 3), table.burst),
+            cut=np.zeros((4, 3), dtype=bool),
+        )
+        assert table.uniform and not per_link.uniform
         a = draw_links(profile, state, length, np.random.default_rng(9))
-        b = draw_links(LinkTable.from_profile(profile), state, length, np.random.default_rng(9))
-        for x, y in ((a.delivered, b.delivered), (a.delay_s, b.delay_s)):
-            np.testing.assert_array_equal(x, y)
-        np.testing.assert_array_equal(a.in_bad_state, b.in_bad_state)
+        for other in (table, per_link):
+            b = draw_links(other, state, length, np.random.default_rng(9))
+            for x, y in ((a.delivered, b.delivered), (a.delay_s, b.delay_s)):
+                np.testing.assert_array_equal(x, y)
+            np.testing.assert_array_equal(a.in_bad_state, b.in_bad_state)
 
 
 def _engine() -> WorldEngine:
