@@ -211,6 +211,9 @@ class Firmware:
         """Whether the world runs in lockstep (the runtime sets it from the sense messages):
         then the peers' liveliness tokens are kept but do not count (`Leadership.use_tokens`),
         so failover depends only on frames and their simulation times."""
+        self.tokens_suspended = False
+        """Whether the peers' liveliness tokens do not count for now: the runtime's loop
+        stalled lately (robot_firmware/tick_scheduler.py `LoopStallWatch`)."""
         self._handover: tuple[float, tuple[float, float]] | None = None
         """(time, offset from the trajectory) of taking over the lead while driving."""
         self._handover_pending = False
@@ -318,7 +321,7 @@ class Firmware:
         leadership = self.leadership_at(now_ns)
         t_s = now_ns / NS_PER_S
         first_tick = self.ticks == 0
-        leadership.use_tokens = not self.lockstep
+        leadership.use_tokens = not self.lockstep and not self.tokens_suspended
         leadership.update(t_s)
         acting = leadership.acting_leader(t_s)
         m = self.mission

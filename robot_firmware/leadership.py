@@ -49,7 +49,11 @@ its clock jumped) heard nothing meanwhile, so a peer's silence counts only from 
 (`listening_since_s`); and since its own link to the router may have lapsed too (every peer's
 token then goes and comes back as it reconnects), tokens count again only after it has listened
 for `leader_timeout_s`.  So a robot continued after SIGSTOP never takes the silence it slept
-through for a lost leader.
+through for a lost leader.  Its simulation time does not always show the gap, though: it may
+first read a backlog of messages queued before the router dropped its session, with times
+one period apart, while the reconnection takes the tokens away.  So the runtime also watches
+its own loop, and for a while after the loop stalled the tokens do not count at all
+(`use_tokens` off, robot_firmware/tick_scheduler.py `LoopStallWatch`).
 
 Transitions (`LEADING` / `FOLLOWING(L)`, with L None while no leader is known):
 

@@ -79,7 +79,7 @@ from robot_firmware.net.wire import (
 )
 from robot_firmware.pins import apply_sense
 from robot_firmware.regs_admin import handle_regs_request
-from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler, Wait
+from robot_firmware.tick_scheduler import LoopStallWatch, RunTick, SafeStop, TickScheduler, Wait
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, CredentialsFile
 from swarm_config.faults import FAULT_ADAPTER, REGISTER_FAULT_ADAPTER
 from swarm_config.scenario import load_fuzzy_parameters, load_scenario
@@ -164,6 +164,8 @@ class RobotProcess:
         )
         self.period_ns = round(self.mission.params.control_period_s * NS_PER_S)
         self.scheduler = TickScheduler(self.period_ns)
+        self.stall_watch = LoopStallWatch()
+        """Whether this process's loop stalled lately: then peers' tokens do not count."""
         self._sense: deque[tuple[bytes, int]] = deque(maxlen=64)
         self._frames: deque[bytes] = deque(maxlen=1024)
         self._peer_tokens: deque[tuple[str, bool]] = deque(maxlen=1024)
@@ -217,15 +219,25 @@ class RobotProcess:
             gc.freeze()  # boot-time objects leave the collector's work: shorter pauses in the loop
             log.info("robot %s up (%s)", name, "leader" if self.firmware.is_leader else "follower")
             while not self.stop.is_set():
+                late_ns = self.stall_watch.came_round(time.monotonic_ns())
+                if late_ns:
+                    log.warning(
+                        "this process stalled for %.1f s (frozen or starved): peers' liveliness "
+                        "tokens do not count for %.0f s while its link to the router settles",
+                        late_ns / NS_PER_S,
+                        self.stall_watch.settle_ns / NS_PER_S,
+                    )
                 self._serve_queries()
                 self._take_sense()
                 decision = self.scheduler.poll(time.monotonic_ns(), len(self._frames))
                 if isinstance(decision, Wait):
+                    self.stall_watch.due(time.monotonic_ns() + round(decision.timeout_s * NS_PER_S))
                     self._wake.wait(decision.timeout_s)
                     self._wake.clear()
                     continue
                 self._run_period(decision, act_pub, tx_pub, telemetry_pub)
                 self.scheduler.finished(decision, time.monotonic_ns())
+                self.stall_watch.due(time.monotonic_ns())
             token.undeclare()
         return 0
 
@@ -313,6 +325,7 @@ class RobotProcess:
         self._advance_fabric_to(now_ns)
         # In lockstep the tokens' wall-clock instants must not decide a failover (replays).
         self.firmware.lockstep = self.scheduler.lockstep
+        self.firmware.tokens_suspended = self.stall_watch.settling(time.monotonic_ns())
         while self._peer_tokens:
             peer, alive = self._peer_tokens.popleft()
             self.firmware.set_peer_alive(peer, alive, now_ns)

@@ -51,6 +51,10 @@ IDLE_WAIT_S = 0.05
 """How long to sleep when nothing can happen before new input arrives."""
 SENSE_TIMEOUT_PERIODS = 10
 """Default sense time-out, in control periods (100 ms at 100 Hz)."""
+STALL_NS = 500_000_000
+"""A loop that comes round this much later than it meant to was stalled (0.5 s)."""
+TOKEN_SETTLE_NS = 2_000_000_000
+"""How long after a stall the peers' liveliness tokens do not count (2 s)."""
 
 
 @dataclass(frozen=True)
@@ -115,6 +119,43 @@ class LoopTiming:
 
     def jitter_p99_ms(self) -> float | None:
         return float(np.percentile(self.jitter_ns, 99)) / 1e6 if self.jitter_ns else None
+
+
+@dataclass
+class LoopStallWatch:
+    """Whether the robot process's own loop stalled (frozen by SIGSTOP, or starved of CPU).
+
+    A process frozen for longer than its liveliness lease finds, when continued, that the router
+    dropped its session: as it reconnects, every peer's token goes and comes back, while the
+    messages queued before the freeze are still being read.  A robot that counted those tokens
+    would take itself for the last one left and lead a term of its own.  So for `settle_ns`
+    after a stall the tokens do not count (`settling`): frames alone decide who is live, as in
+    lockstep (robot_firmware/leadership.py).  The loop says when it means to come round again
+    (`due`); coming round more than `stall_ns` later is a stall."""
+
+    stall_ns: int = STALL_NS
+    settle_ns: int = TOKEN_SETTLE_NS
+    stalls: int = field(init=False, default=0)
+    _due_ns: int | None = field(init=False, default=None)
+    _settled_ns: int | None = field(init=False, default=None)
+
+    def due(self, due_mono_ns: int) -> None:
+        """The loop means to come round again by `due_mono_ns`."""
+        self._due_ns = due_mono_ns
+
+    def came_round(self, now_mono_ns: int) -> int:
+        """The loop came round at `now_mono_ns`: how late it was, when that is a stall (else
+        0); a stall starts the settling time."""
+        late_ns = 0 if self._due_ns is None else now_mono_ns - self._due_ns
+        if late_ns <= self.stall_ns:
+            return 0
+        self.stalls += 1
+        self._settled_ns = now_mono_ns + self.settle_ns
+        return late_ns
+
+    def settling(self, now_mono_ns: int) -> bool:
+        """Whether the peers' tokens are not to count yet (within `settle_ns` of a stall)."""
+        return self._settled_ns is not None and now_mono_ns < self._settled_ns
 
 
 class TickScheduler:

@@ -7,6 +7,7 @@ noise the two must fly the same swarm, up to what the register path and its timi
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from robot_firmware.net.frames import RadioFrame, Role, encode, initial_sequence
 from robot_firmware.net.messages import TelemetryMessage
 from robot_firmware.net.wire import FixSample, SenseMessage, encode_sense, parse_act
 from robot_firmware.pins import apply_sense
-from robot_firmware.tick_scheduler import RunTick, SafeStop, TickScheduler
+from robot_firmware.tick_scheduler import LoopStallWatch, RunTick, SafeStop, TickScheduler
 from services.sim.batch import run_batch
 from services.sim.firmware_swarm import FirmwareRobot, FirmwareSwarm
 from swarm_config.scenario import Scenario, load_rule_base, load_scenario
@@ -505,3 +506,27 @@ def test_without_a_new_epoch_the_rebooted_peers_frame_is_out_of_order() -> None:
     assert firmware.receive(_peer_frame(True, initial_sequence(t_ns), t_ns), t_ns)
     back_ns = t_ns - 100 * MS
     assert not firmware.receive(_peer_frame(True, initial_sequence(back_ns), back_ns), back_ns)
+
+
+@pytest.mark.usefixtures("_robot_credentials")
+def test_after_its_loop_stalled_a_robot_does_not_count_its_peers_tokens_for_a_while() -> None:
+    """The robot process's own tick path: tokens count in real time, not within the settling
+    time after a stall of its loop (robot_firmware/tick_scheduler.py `LoopStallWatch`)."""
+    robot = make_robot("robot2")
+    process = robot.process
+    sonar_count = process.mission.sonar_count
+    robot.sense(_sense_with_fix(10 * MS, sonar_count))
+    robot.control_tick(10 * MS)
+    leadership = process.firmware.leadership
+    assert leadership is not None and leadership.use_tokens
+    process.stall_watch = LoopStallWatch(settle_ns=1_000 * MS)
+    mono_ns = time.monotonic_ns()
+    process.stall_watch.due(mono_ns - 3 * 1_000 * MS)  # it meant to come round 3 s ago
+    assert process.stall_watch.came_round(mono_ns) > 0
+    robot.sense(_sense_with_fix(20 * MS, sonar_count))
+    robot.control_tick(20 * MS)
+    assert process.firmware.tokens_suspended and not leadership.use_tokens
+    time.sleep(1.05)  # the settling time is over
+    robot.sense(_sense_with_fix(30 * MS, sonar_count))
+    robot.control_tick(30 * MS)
+    assert not process.firmware.tokens_suspended and leadership.use_tokens

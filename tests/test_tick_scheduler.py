@@ -9,6 +9,7 @@ import pytest
 
 from robot_firmware.tick_scheduler import (
     SENSE_TIMEOUT_PERIODS,
+    LoopStallWatch,
     RunTick,
     SafeStop,
     TickScheduler,
@@ -407,3 +408,17 @@ def test_lockstep_answers_the_resumed_worlds_tick_after_a_new_epoch() -> None:
     assert resumed == RunTick(4_200 * MS, 420, 3 * MS, resumed=True, new_epoch=True)
     _sensed_epoch(scheduler, 4_210 * MS, 4 * MS, epoch=2, lockstep=True)
     assert scheduler.poll(5 * MS, 0) == RunTick(4_210 * MS, 421, 5 * MS)
+
+
+def test_a_loop_that_comes_round_late_is_a_stall_and_tokens_settle_after_it() -> None:
+    watch = LoopStallWatch(stall_ns=500 * MS, settle_ns=2_000 * MS)
+    assert watch.came_round(0) == 0 and not watch.settling(0)  # nothing due yet
+    watch.due(10 * MS)
+    assert watch.came_round(400 * MS) == 0  # late, but less than a stall (a busy host)
+    watch.due(410 * MS)
+    assert watch.came_round(3_410 * MS) == 3_000 * MS  # frozen for 3 s
+    assert watch.stalls == 1
+    assert watch.settling(3_410 * MS) and watch.settling(5_409 * MS)
+    assert not watch.settling(5_410 * MS)
+    watch.due(5_420 * MS)
+    assert watch.came_round(5_420 * MS) == 0 and watch.stalls == 1
