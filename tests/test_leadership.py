@@ -515,12 +515,7 @@ def test_a_robot_back_from_a_gap_ignores_the_tokens_its_own_reconnection_takes_a
     follower.update(4.05)
     assert following(follower, 0, 0)
     # Once it has listened for the time-out, a token that goes counts again at once.
-    for k in range(1, 60):
-        t_s = 4.05 + k * TICK_S
-        if k % 5 == 0:
-            follower.hear(0, 0, True, t_s)
-            follower.hear(2, 0, False, t_s)
-        follower.update(t_s)
+    _tick_hearing_both(follower, 4.05, 59)
     assert following(follower, 0, 0)
     follower.set_alive(0, False, 4.65)
     follower.update(4.65)
@@ -535,13 +530,19 @@ def _drain_backlog_after_a_freeze(use_tokens: bool) -> Leadership:
     follower.use_tokens = use_tokens
     follower.set_alive(0, False, 2.01)
     follower.set_alive(2, False, 2.01)
-    for k in range(1, 101):
-        t_s = 2.0 + k * TICK_S
+    _tick_hearing_both(follower, 2.0, 100)
+    return follower
+
+
+def _tick_hearing_both(follower: Leadership, after_s: float, ticks: int) -> None:
+    """`ticks` updates of robot 1 after `after_s`, hearing robot 0 lead term 0 and robot 2
+    follow every broadcast period."""
+    for k in range(1, ticks + 1):
+        t_s = after_s + k * TICK_S
         if k % 5 == 0:
             follower.hear(0, 0, True, t_s)
             follower.hear(2, 0, False, t_s)
         follower.update(t_s)
-    return follower
 
 
 def test_tokens_that_go_while_a_continued_robot_reads_its_backlog_would_make_it_lead() -> None:
