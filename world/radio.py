@@ -200,6 +200,41 @@ def _uniform_rows(
     return delivered, delay_s, bad
 
 
+class RowDraw:
+    """`draw_links` for the links from one sender to each of N robots when they all share one
+    profile with no range: what the world's radio medium does with each frame while no
+    network fault is active.  The profile's scalars are taken once, and the uniform numbers
+    are the same ones in the same order (loss, delay, then burst state: one call of the
+    generator for all of them), so the fates equal `draw_links`' bit for bit
+    (tests/world/test_radio.py)."""
+
+    def __init__(self, profile: LinkProfile, robot_count: int) -> None:
+        if profile.range_m is not None:
+            raise ValueError("a ranged profile needs the links' lengths: use draw_links")
+        table = LinkTable.from_profile(profile)
+        self.profile = profile
+        self.burst = bool(table.burst)
+        self._robot_count = robot_count
+        self._draw_count = robot_count * (3 if self.burst else 2)
+        self._zeros = np.zeros(robot_count)
+        self._scalars = (
+            self.burst, float(table.good_to_bad), float(table.bad_to_good), float(table.loss),
+            float(table.loss_in_good), float(table.loss_in_bad), False, math.inf,
+            float(table.latency_ms), float(table.jitter_ms),
+        )  # fmt: skip
+
+    def __call__(
+        self, in_bad_state: BoolArray, rng: np.random.Generator
+    ) -> tuple[BoolArray, FloatArray, BoolArray]:
+        """Delivered, delay (s) and new burst state of each link of one row (N,)."""
+        n = self._robot_count
+        u = rng.random(self._draw_count)
+        u_state = u[2 * n :] if self.burst else self._zeros
+        return _uniform_rows(
+            u_state, in_bad_state, u[:n], u[n : 2 * n], self._zeros, *self._scalars
+        )
+
+
 def _flat(arrays: list[ArrayLike], dtypes: list[type]) -> tuple[tuple[int, ...], list[Any]]:
     """Broadcast `arrays` together; their shape and each one flat, contiguous, of its dtype."""
     full = np.broadcast_arrays(*arrays)

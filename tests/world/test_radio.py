@@ -3,7 +3,7 @@ import pytest
 from pydantic import ValidationError
 
 from swarm_config.radio import PROFILES, BurstLoss, LinkProfile
-from world.radio import draw_links
+from world.radio import RowDraw, draw_links
 
 
 def test_bernoulli_loss_and_delay_match_profile() -> None:
@@ -45,3 +45,35 @@ def test_invalid_profiles_are_rejected() -> None:
         LinkProfile(loss=1.5)
     with pytest.raises(ValidationError):
         LinkProfile(loss=0.1, burst=BurstLoss(good_to_bad=0.1, bad_to_good=0.1))
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_one_row_draw_equals_draw_links_frame_after_frame(name: str) -> None:
+    """The world's per-frame draw (`RowDraw`) gives `draw_links`' fates and burst states bit
+    for bit, over a stream of frames from changing senders, from generators in one state."""
+    profile = PROFILES[name]
+    robots = 5
+    row = RowDraw(profile, robots)
+    fast_rng, plain_rng = np.random.default_rng(41), np.random.default_rng(41)
+    fast_bad = np.zeros((robots, robots), dtype=bool)
+    plain_bad = fast_bad.copy()
+    delivered_any = lost_any = False
+    for frame in range(400):
+        sender = (frame * 3) % robots
+        delivered, delay_s, bad = row(fast_bad[sender], fast_rng)
+        fast_bad[sender] = bad
+        want = draw_links(profile, plain_bad[sender : sender + 1], None, plain_rng)
+        plain_bad[sender] = want.in_bad_state[0]
+        np.testing.assert_array_equal(delivered, want.delivered[0])
+        np.testing.assert_array_equal(delay_s, want.delay_s[0])
+        np.testing.assert_array_equal(bad, want.in_bad_state[0])
+        delivered_any |= bool(delivered.any())
+        lost_any |= bool((~delivered).any())
+    assert delivered_any
+    assert lost_any == (profile.loss > 0 or profile.burst is not None)
+    assert fast_rng.random() == plain_rng.random()  # the same number of draws
+
+
+def test_a_ranged_profile_is_not_drawn_by_row() -> None:
+    with pytest.raises(ValueError, match="ranged"):
+        RowDraw(LinkProfile(range_m=2.0), 3)
