@@ -3,7 +3,9 @@
 It owns a `WorldEngine` and talks to the robots only through their pins and the radio:
 publishes `wire/<robot>/sense`, reads `wire/<robot>/act`, forwards `radio/tx/<robot>` frames to
 the other robots' `radio/rx/<robot>` after the link profile's delay (or drops them), and
-publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what arrives.
+publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what arrives; in
+real time a relay thread of the radio medium passes frames on as they come (`_relay_frames`),
+touching the engine only under the lock the main loop holds while it is awake.
 
 Clock modes:
 * real time (default): simulation time is wall time, except that the starvation guard
@@ -310,7 +312,9 @@ class WorldProcess:
         """When the first of the newest sense messages went out."""
         """The newest sense messages and when they went out (repeated while time is held)."""
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
-        self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._frames: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
+        """Frames as they come, (sender, payload): taken at the barrier in lockstep, by the
+        radio relay in real time (`_relay_frames`; None ends it)."""
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
         self._token_lost_mono_s: dict[str, float] = {}
         """Lockstep: live robots whose token went, and when (monotonic s): held for the grace
@@ -337,6 +341,9 @@ class WorldProcess:
         """Frames from robotN's transmitter that claim another sender id (dropped)."""
         self._catch_up: Callable[[int], None] | None = None
         self._held_frames: list[tuple[int, bytes]] = []
+        self._engine_lock = threading.Lock()
+        """Real time: held by the main loop while it is awake and by the radio relay while it
+        passes frames on (`_relay_frames`); everything the engine holds is touched under it."""
         self.timing: dict[str, LoopTimingReport] = {}
         self.sense_drops: dict[str, dict[str, int]] = {}
         self.reported_roles: dict[str, tuple[bool, int, float]] = {}
@@ -475,7 +482,7 @@ class WorldProcess:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self._frames.put((SwarmKeys.last_chunk(str(sample.key_expr)), sample.payload.to_bytes()))
-        if self._frames.qsize() >= self._frames_wake_at:
+        if self.config.lockstep and self._frames.qsize() >= self._frames_wake_at:
             self._wake.set()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
@@ -522,27 +529,71 @@ class WorldProcess:
                 self._catch_up(arrival)  # the old duty held until this act arrived
             self._apply_act(i, act, arrival)
         frames: list[tuple[int, bytes]] = []
-        while True:
+        while self.config.lockstep:  # in real time the radio relay takes them
             try:
-                sender, payload = self._frames.get_nowait()
+                item = self._frames.get_nowait()
             except queue.Empty:
                 break
-            j = self.index.get(sender)
-            if j is None:
-                self.unknown_senders += 1
+            if item is None:
                 continue
-            self.barrier.frame(sender)
-            if claimed_sender(payload) not in (None, j):
-                # The medium knows the antenna: a robot cannot speak for another.
-                self.spoofed_frames += 1
-                continue
-            frames.append((j, payload))
+            sender, payload = item
+            j = self._accept_frame(sender, payload)
+            if j is not None:
+                frames.append((j, payload))
         self._take_telemetry()
         # Deterministic order within one step: by sender index, then arrival.
         self._held_frames.extend(frames)
         if not self.config.lockstep:
             self._transmit_held()
         self._serve_queries()
+
+    def _accept_frame(self, sender: str, payload: bytes) -> int | None:
+        """The sender's index if the medium takes the frame from robot `sender`'s transmitter;
+        None (counted) for an unknown transmitter or a frame claiming another sender id."""
+        j = self.index.get(sender)
+        if j is None:
+            self.unknown_senders += 1
+            return None
+        self.barrier.frame(sender)
+        if claimed_sender(payload) not in (None, j):
+            # The medium knows the antenna: a robot cannot speak for another.
+            self.spoofed_frames += 1
+            return None
+        return j
+
+    def _relay_frames(self) -> None:
+        """Real time: the radio medium's own thread.  Each frame is drawn and, on a link with
+        no delay, put on its receivers' keys as soon as it comes, without waiting for the main
+        loop to wake and drain its queues (docs/scale.md, "The radio hop").  Frames that come
+        together are passed on under one hold of the engine's lock, in arrival order; a frame
+        with a delay is queued in the engine and the main loop, woken to look at its new due
+        time, delivers it.  While the main loop holds the lock (awake, or waiting on a fault's
+        answer) frames wait in the queue: the subscriber's callback never waits.  Ends at the
+        `None` that `run` queues after undeclaring the subscriber."""
+        while (first := self._frames.get()) is not None:
+            batch: list[tuple[str, bytes] | None] = [first]
+            while True:
+                try:
+                    batch.append(self._frames.get_nowait())
+                except queue.Empty:
+                    break
+            with self._engine_lock:
+                try:
+                    for item in batch:
+                        if item is None:
+                            return
+                        j = self._accept_frame(*item)
+                        if j is not None:
+                            self.engine.transmit(j, item[1])
+                    self._deliver_radio()
+                except Exception:
+                    # A world without its radio must not go on as if it had one.
+                    log.exception("the radio relay failed: stopping the world")
+                    self.stop.set()
+                    self._wake.set()
+                    return
+                if self.engine.next_frame_due_ns() is not None:
+                    self._wake.set()
 
     def _on_liveliness(self, name: str, alive: bool) -> None:
         if name not in self.index:
@@ -743,7 +794,14 @@ class WorldProcess:
         with open_client(cfg.connect, cfg.zenoh_config, cfg.credentials) as session:
             keys = self.keys
             session.declare_subscriber(keys.act_all, self._on_act)
-            session.declare_subscriber(keys.radio_tx_all, self._on_frame)
+            frame_subscriber = session.declare_subscriber(keys.radio_tx_all, self._on_frame)
+            # Lockstep: frames are part of a tick's answer, taken by the main loop at the
+            # barrier.  Real time: a thread of the radio medium relays them as they come.
+            relay = (
+                None
+                if cfg.lockstep
+                else threading.Thread(target=self._relay_frames, name="radio-relay", daemon=True)
+            )
             session.declare_subscriber(keys.telemetry_all, self._on_telemetry)
             session.liveliness().declare_subscriber(
                 keys.alive_all("robot"), self._on_alive, history=True
@@ -770,11 +828,17 @@ class WorldProcess:
             if self.checkpoints is not None:
                 self._checkpoint_writer = CheckpointWriter(self.checkpoints)
             try:
-                if cfg.lockstep:
+                if relay is None:
                     self._run_lockstep(session, clock_pub, truth_pub)
                 else:
-                    self._run_realtime(session, clock_pub, truth_pub)
+                    with self._engine_lock:
+                        relay.start()
+                        self._run_realtime(session, clock_pub, truth_pub)
             finally:
+                if relay is not None:
+                    frame_subscriber.undeclare()
+                    self._frames.put(None)
+                    relay.join()
                 if self._checkpoint_writer is not None:
                     if self.checkpoints is not None and self.engine.t_ns > 0:
                         self._checkpoint_writer.submit(self.tick, self.checkpoint_state())
@@ -931,7 +995,12 @@ class WorldProcess:
                     wait_ns = due - now_sim
                     if guard.holding:  # until an act comes, or the sense messages are repeated
                         wait_ns = min(wait_ns, self._sense_sent_mono_ns + self.period_ns - mono)
-                    self._wake.wait(max(wait_ns, 0) / NS_PER_S)
+                    # Asleep, the loop lets the radio relay at the engine (`_relay_frames`).
+                    self._engine_lock.release()
+                    try:
+                        self._wake.wait(max(wait_ns, 0) / NS_PER_S)
+                    finally:
+                        self._engine_lock.acquire()
                     self._wake.clear()
                 self._drain()
                 # Frames due by the engine's time (all of them on an ideal link) leave before
