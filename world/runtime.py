@@ -312,9 +312,12 @@ class WorldProcess:
         """When the first of the newest sense messages went out."""
         """The newest sense messages and when they went out (repeated while time is held)."""
         self._acts: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
-        self._frames: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
-        """Frames as they come, (sender, payload): taken at the barrier in lockstep, by the
-        radio relay in real time (`_relay_frames`; None ends it)."""
+        self._frames: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        """Frames as they come, (sender, payload): taken at the barrier in lockstep; in real
+        time passed on under the engine's lock (`_pass_frames_on`)."""
+        self._frames_queued = threading.Event()
+        """Real time: set by the frames' callback, cleared by the radio relay under the lock."""
+        self._relay_stopping = False
         self._liveliness: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
         self._token_lost_mono_s: dict[str, float] = {}
         """Lockstep: live robots whose token went, and when (monotonic s): held for the grace
@@ -482,7 +485,9 @@ class WorldProcess:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self._frames.put((SwarmKeys.last_chunk(str(sample.key_expr)), sample.payload.to_bytes()))
-        if self.config.lockstep and self._frames.qsize() >= self._frames_wake_at:
+        if not self.config.lockstep:
+            self._frames_queued.set()
+        elif self._frames.qsize() >= self._frames_wake_at:
             self._wake.set()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
@@ -528,23 +533,21 @@ class WorldProcess:
             if self._catch_up is not None:
                 self._catch_up(arrival)  # the old duty held until this act arrived
             self._apply_act(i, act, arrival)
-        frames: list[tuple[int, bytes]] = []
-        while self.config.lockstep:  # in real time the radio relay takes them
-            try:
-                item = self._frames.get_nowait()
-            except queue.Empty:
-                break
-            if item is None:
-                continue
-            sender, payload = item
-            j = self._accept_frame(sender, payload)
-            if j is not None:
-                frames.append((j, payload))
+        if self.config.lockstep:
+            frames: list[tuple[int, bytes]] = []
+            while True:
+                try:
+                    sender, payload = self._frames.get_nowait()
+                except queue.Empty:
+                    break
+                j = self._accept_frame(sender, payload)
+                if j is not None:
+                    frames.append((j, payload))
+            # Deterministic order within one step: by sender index, then arrival.
+            self._held_frames.extend(frames)
+        else:
+            self._pass_frames_on()
         self._take_telemetry()
-        # Deterministic order within one step: by sender index, then arrival.
-        self._held_frames.extend(frames)
-        if not self.config.lockstep:
-            self._transmit_held()
         self._serve_queries()
 
     def _accept_frame(self, sender: str, payload: bytes) -> int | None:
@@ -561,31 +564,39 @@ class WorldProcess:
             return None
         return j
 
+    def _pass_frames_on(self) -> None:
+        """Real time, under the engine's lock: every frame queued so far, in arrival order,
+        drawn on its links, and the frames due now put on their receivers' keys."""
+        transmitted = False
+        while True:
+            try:
+                sender, payload = self._frames.get_nowait()
+            except queue.Empty:
+                break
+            j = self._accept_frame(sender, payload)
+            if j is not None:
+                self.engine.transmit(j, payload)
+                transmitted = True
+        if transmitted:
+            self._deliver_radio()
+
     def _relay_frames(self) -> None:
-        """Real time: the radio medium's own thread.  Each frame is drawn and, on a link with
-        no delay, put on its receivers' keys as soon as it comes, without waiting for the main
-        loop to wake and drain its queues (docs/scale.md, "The radio hop").  Frames that come
-        together are passed on under one hold of the engine's lock, in arrival order; a frame
-        with a delay is queued in the engine and the main loop, woken to look at its new due
-        time, delivers it.  While the main loop holds the lock (awake, or waiting on a fault's
-        answer) frames wait in the queue: the subscriber's callback never waits.  Ends at the
-        `None` that `run` queues after undeclaring the subscriber."""
-        while (first := self._frames.get()) is not None:
-            batch: list[tuple[str, bytes] | None] = [first]
-            while True:
-                try:
-                    batch.append(self._frames.get_nowait())
-                except queue.Empty:
-                    break
+        """Real time: the radio medium's own thread.  While the main loop sleeps, frames are
+        drawn and, on a link with no delay, put on their receivers' keys as soon as they come,
+        instead of when the main loop next wakes (docs/scale.md, "The radio hop").  Frames are
+        taken from the queue only under the engine's lock, by this thread or by the main loop
+        when it is awake (`_drain`), so they leave in arrival order and a busy main loop passes
+        them on itself.  A frame with a delay is queued in the engine and the main loop, woken
+        to look at its new due time, delivers it.  The subscriber's callback never waits for
+        the lock.  Ends when `run` sets `_relay_stopping`."""
+        while True:
+            self._frames_queued.wait()
             with self._engine_lock:
+                self._frames_queued.clear()
+                if self._relay_stopping:
+                    return
                 try:
-                    for item in batch:
-                        if item is None:
-                            return
-                        j = self._accept_frame(*item)
-                        if j is not None:
-                            self.engine.transmit(j, item[1])
-                    self._deliver_radio()
+                    self._pass_frames_on()
                 except Exception:
                     # A world without its radio must not go on as if it had one.
                     log.exception("the radio relay failed: stopping the world")
@@ -837,7 +848,9 @@ class WorldProcess:
             finally:
                 if relay is not None:
                     frame_subscriber.undeclare()
-                    self._frames.put(None)
+                    with self._engine_lock:
+                        self._relay_stopping = True
+                    self._frames_queued.set()
                     relay.join()
                 if self._checkpoint_writer is not None:
                     if self.checkpoints is not None and self.engine.t_ns > 0:

@@ -82,6 +82,14 @@ class Medium:
     sessions: dict[str, zenoh.Session]
     inboxes: dict[str, Inbox]
 
+    def await_frames(self, count: int, receivers: tuple[str, ...] = ("robot2", "robot3")) -> None:
+        wait_for(
+            lambda: all(len(self.inboxes[r].frames) >= count for r in receivers) or None,
+            30.0,
+            0.05,
+            f"{count} frames at {', '.join(receivers)}",
+        )
+
     def send(self, robot: str, claimed_sender: int, sequences: range) -> None:
         publisher = self.sessions[robot].declare_publisher(KEYS.radio_tx(robot))
         for sequence in sequences:
@@ -161,24 +169,14 @@ def test_frames_are_relayed_in_order_and_spoofed_ones_dropped(medium: Medium) ->
     inboxes = medium.inboxes
     # Ideal links: relayed as they come, by the relay thread.
     medium.send("robot1", 0, range(0, 40))
-    wait_for(
-        lambda: all(len(inboxes[r].frames) >= 40 for r in ("robot2", "robot3")) or None,
-        30.0,
-        0.05,
-        "40 frames at robot2 and robot3",
-    )
+    medium.await_frames(40)
     # robot2's transmitter claiming robot1's id: the medium knows the antenna.
     medium.send("robot2", 0, range(1000, 1010))
     # Links with a delay: queued in the engine, delivered by the main loop when due.
     reply = medium.set_profile({"latency_ms": 40.0, "jitter_ms": 0.0, "loss": 0.0})
     assert reply["profile"]["latency_ms"] == 40.0
     medium.send("robot1", 0, range(40, 60))
-    wait_for(
-        lambda: all(len(inboxes[r].frames) >= 60 for r in ("robot2", "robot3")) or None,
-        30.0,
-        0.05,
-        "60 frames at robot2 and robot3",
-    )
+    medium.await_frames(60)
 
     def counted() -> WorldStatusReply | None:
         status = medium.status()

@@ -1,0 +1,108 @@
+"""How the world passes radio frames on in real time (world/runtime.py `_relay_frames`,
+`_pass_frames_on`), without a network: the receivers' publishers record what they are given.
+
+Frames leave the queue only under the engine's lock: by the relay thread while the main loop
+sleeps, or by the main loop's own drain while it is awake, and always in arrival order.
+tests/integration/test_radio_relay.py checks the same over a real router.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from pathlib import Path
+
+from swarm_config.scenario import load_scenario
+from tests.support.waiting import wait_for
+from world.runtime import WorldConfig, WorldProcess
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+class RecordingPublisher:
+    def __init__(self, receiver: str, out: list[tuple[str, int]]) -> None:
+        self.receiver = receiver
+        self.out = out
+
+    def put(self, payload: bytes) -> None:
+        self.out.append((self.receiver, int(struct.unpack_from("<Q", payload, 8)[0])))
+
+
+def frame(claimed_sender: int, sequence: int) -> bytes:
+    return struct.pack("<IHHQ", 0, claimed_sender, 0, sequence) + bytes(16)
+
+
+def real_time_world(
+    profile: bytes = b'{"profile": "ideal"}',
+) -> tuple[WorldProcess, list[tuple[str, int]]]:
+    """A real-time world of the paper scenario on the link profile `profile` (a body of
+    `admin/world/net`)."""
+    world = WorldProcess(WorldConfig(scenario=PAPER), load_scenario(PAPER))
+    world._net_request(profile)
+    delivered: list[tuple[str, int]] = []
+    world._rx_publishers = [RecordingPublisher(name, delivered) for name in world.names]  # type: ignore[misc]
+    return world, delivered
+
+
+def queue_frame(world: WorldProcess, sender: str, payload: bytes) -> None:
+    """What the subscriber's callback does with a frame in real time."""
+    world._frames.put((sender, payload))
+    world._frames_queued.set()
+
+
+def test_an_awake_main_loop_passes_queued_frames_on_in_arrival_order() -> None:
+    world, delivered = real_time_world()
+    queue_frame(world, "robot1", frame(0, 1))
+    queue_frame(world, "robot3", frame(2, 2))
+    queue_frame(world, "robot2", frame(0, 3))  # robot2 claiming robot1's id: dropped
+    queue_frame(world, "robot9", frame(8, 4))  # no such transmitter: dropped
+    queue_frame(world, "robot1", frame(0, 5))
+    world._drain()
+    assert delivered == [
+        ("robot2", 1), ("robot3", 1),
+        ("robot1", 2), ("robot2", 2),
+        ("robot2", 5), ("robot3", 5),
+    ]  # fmt: skip
+    assert (world.spoofed_frames, world.unknown_senders) == (1, 1)
+    assert world.engine.radio.sent == 3
+    assert world._frames.empty()
+
+
+def test_the_relay_thread_passes_frames_on_only_under_the_engine_lock() -> None:
+    world, delivered = real_time_world()
+    relay = threading.Thread(target=world._relay_frames, daemon=True)
+    with world._engine_lock:  # the main loop is awake
+        relay.start()
+        queue_frame(world, "robot1", frame(0, 7))
+        time.sleep(0.2)
+        assert delivered == []
+        assert not world._frames.empty()
+    # The main loop sleeps: the relay takes the frame.
+    wait_for(lambda: len(delivered) == 2 or None, 10.0, 0.01, "the relayed frame")
+    assert delivered == [("robot2", 7), ("robot3", 7)]
+    with world._engine_lock:
+        world._relay_stopping = True
+    world._frames_queued.set()
+    relay.join(timeout=10.0)
+    assert not relay.is_alive()
+
+
+def test_a_delayed_frame_waits_in_the_engine_and_wakes_the_main_loop() -> None:
+    world, delivered = real_time_world(b'{"latency_ms": 40.0, "jitter_ms": 0.0, "loss": 0.0}')
+    relay = threading.Thread(target=world._relay_frames, daemon=True)
+    relay.start()
+    world._wake.clear()
+    queue_frame(world, "robot1", frame(0, 9))
+    assert world._wake.wait(10.0)  # to look at the frame's due time
+    with world._engine_lock:
+        assert delivered == []
+        assert world.engine.next_frame_due_ns() == 40_000_000
+        world.engine.advance(world.duty, 40_000_000)
+        world._deliver_radio()
+        world._relay_stopping = True
+    assert delivered == [("robot2", 9), ("robot3", 9)]
+    world._frames_queued.set()
+    relay.join(timeout=10.0)
+    assert not relay.is_alive()
