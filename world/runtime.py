@@ -534,17 +534,8 @@ class WorldProcess:
                 self._catch_up(arrival)  # the old duty held until this act arrived
             self._apply_act(i, act, arrival)
         if self.config.lockstep:
-            frames: list[tuple[int, bytes]] = []
-            while True:
-                try:
-                    sender, payload = self._frames.get_nowait()
-                except queue.Empty:
-                    break
-                j = self._accept_frame(sender, payload)
-                if j is not None:
-                    frames.append((j, payload))
             # Deterministic order within one step: by sender index, then arrival.
-            self._held_frames.extend(frames)
+            self._held_frames.extend(self._queued_frames())
         else:
             self._pass_frames_on()
         self._take_telemetry()
@@ -564,20 +555,26 @@ class WorldProcess:
             return None
         return j
 
-    def _pass_frames_on(self) -> None:
-        """Real time, under the engine's lock: every frame queued so far, in arrival order,
-        drawn on its links, and the frames due now put on their receivers' keys."""
-        transmitted = False
+    def _queued_frames(self) -> list[tuple[int, bytes]]:
+        """Every frame queued so far that the medium takes, as (sender index, payload), in
+        arrival order."""
+        frames: list[tuple[int, bytes]] = []
         while True:
             try:
                 sender, payload = self._frames.get_nowait()
             except queue.Empty:
-                break
+                return frames
             j = self._accept_frame(sender, payload)
             if j is not None:
-                self.engine.transmit(j, payload)
-                transmitted = True
-        if transmitted:
+                frames.append((j, payload))
+
+    def _pass_frames_on(self) -> None:
+        """Real time, under the engine's lock: every frame queued so far, in arrival order,
+        drawn on its links, and the frames due now put on their receivers' keys."""
+        frames = self._queued_frames()
+        for j, payload in frames:
+            self.engine.transmit(j, payload)
+        if frames:
             self._deliver_radio()
 
     def _relay_frames(self) -> None:

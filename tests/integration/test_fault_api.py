@@ -276,7 +276,10 @@ def test_register_faults_land_in_the_fpga_model_and_clear(live_swarm: LiveSwarm)
         lambda: (w := _world(live)) and w["lockstep_owed"]["robot2"]["excused"] >= 2 and w,
         describe="ticks that went on without robot2's late answers",
     )
-    _inject(live, "clear-registers", "robot2")
+    # The clearing waits for the next tick boundary (up to the 2 s answer time-out) and then
+    # for robot2 to answer between two of its 2.5 s ticks (the world forwards it for up to
+    # 5 s): more than the command's default 3 s.
+    _inject(live, "clear-registers", "robot2", "--timeout", "15")
     cleared = _world(live)
     later = live.wait_for(
         lambda: (w := _world(live)) and w["t_s"] > cleared["t_s"] + 2.0 and w,
