@@ -192,7 +192,11 @@ class RobotProcess:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self._frames.append(sample.payload.to_bytes())
-        self._wake.set()
+        # A lockstep tick waits for the frames its sense message announced.  In real time the
+        # next tick takes whatever has come: waking the loop for each of the 20 (N - 1)
+        # frames a second would cost a wake-up per frame for nothing.
+        if self.scheduler.lockstep:
+            self._wake.set()
 
     def _on_peer_token(self, sample: zenoh.Sample) -> None:
         name = SwarmKeys.last_chunk(str(sample.key_expr))
