@@ -311,11 +311,7 @@ class RobotProcess:
             self._tick_fabric(target_ns - self._fabric_time_ns)
 
     def _tick_fabric(self, dt_ns: int) -> None:
-        step = self.config.fabric_step_ns
-        while dt_ns > 0:
-            slice_ns = min(step, dt_ns)
-            self.fabric.tick(slice_ns)
-            dt_ns -= slice_ns
+        self.fabric.advance(dt_ns, self.config.fabric_step_ns)
         self._fabric_time_ns = self.fabric.now_ns
 
     def _control(

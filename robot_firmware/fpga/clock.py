@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-from robot_firmware.fpga.registers import Access, Field, Peripheral, Register
+from robot_firmware.fpga.registers import Access, Field, Peripheral, Register, slices_before_due
 
 REF_CLOCK_HZ = 50_000_000
 LOCK_TIME_NS = 20_000
@@ -187,6 +187,11 @@ class ClockBlock(Peripheral):
         if self._lock_remaining_ns <= 0:
             self._active, self._pending = self._pending, None
             self._publish()
+
+    def quiet_slices(self, slice_ns: int) -> int | None:
+        if self._pending is None:
+            return None
+        return slices_before_due(self._lock_remaining_ns, slice_ns)
 
     # -- hardware side ---------------------------------------------------------------
 

@@ -137,6 +137,31 @@ class Fabric:
         for peripheral in self._tick_order:
             peripheral.tick(dt_ns)
 
+    def advance(self, dt_ns: int, slice_ns: int) -> None:
+        """Advance by `dt_ns` in fabric slices of `slice_ns` (the last one shorter if need be),
+        with the state a `tick(slice_ns)` per slice leaves, bit for bit.
+
+        The model's time resolution is the slice: an IP's events (a window latched, an echo
+        timed, a countdown at zero) fall at the end of the slice in which they are due.  Whole
+        slices in which no IP has an event are merged into one `tick`: there every IP's `tick`
+        only adds the time up (each says how many slices it stays quiet, `quiet_slices`), and
+        the slice of an event is ticked on its own, so an IP that reads another's state (the
+        QEPs read the clock block's C0) reads it as it was at that slice.
+        """
+        if slice_ns <= 0:
+            raise ValueError(f"a fabric slice lasts some time: slice_ns={slice_ns}")
+        while dt_ns > 0:
+            merged = dt_ns // slice_ns
+            for peripheral in self._tick_order:
+                quiet = peripheral.quiet_slices(slice_ns)
+                if quiet is not None and quiet < merged:
+                    merged = quiet
+                    if merged == 0:
+                        break
+            step_ns = merged * slice_ns if merged else min(slice_ns, dt_ns)
+            self.tick(step_ns)
+            dt_ns -= step_ns
+
     # -- hardware side ---------------------------------------------------------------
 
     def hw_apply_sense(

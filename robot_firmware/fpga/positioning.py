@@ -31,6 +31,7 @@ from robot_firmware.fpga.registers import (
     Peripheral,
     Register,
     as_unsigned32,
+    slices_before_due,
 )
 
 UM_PER_M = 1_000_000
@@ -180,6 +181,12 @@ class PositioningReceiver(Peripheral):
         stale_ms = self._get(STALE_MS)
         if self._valid and stale_ms and self._age_ns >= stale_ms * NS_PER_MS:
             self._set_valid(False)
+
+    def quiet_slices(self, slice_ns: int) -> int | None:
+        stale_ms = self._get(STALE_MS)
+        if self._age_ns is None or not self._valid or not stale_ms:
+            return None
+        return slices_before_due(stale_ms * NS_PER_MS - self._age_ns, slice_ns)
 
     # -- hardware side ---------------------------------------------------------------
 

@@ -30,6 +30,7 @@ from robot_firmware.fpga.registers import (
     Peripheral,
     Register,
     as_unsigned32,
+    slices_before_due,
 )
 
 NS_PER_S = 1_000_000_000
@@ -180,6 +181,12 @@ class Qep(Peripheral):
         self._store(SPEED, as_unsigned32(speed))
         self._store(SPEED_FILTERED, as_unsigned32(self._speed_filter(speed)))
         self._set_bits(EVENTS_SPEED_NEW)
+
+    def quiet_slices(self, slice_ns: int) -> int | None:
+        window_ns = self._get(WINDOW_TICKS) * NS_PER_S // max(1, self._clock_hz())
+        if window_ns == 0:
+            return None
+        return slices_before_due(window_ns - self._window_elapsed_ns, slice_ns)
 
     # -- hardware side ---------------------------------------------------------------
 

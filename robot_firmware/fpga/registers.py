@@ -301,6 +301,14 @@ class Peripheral:
         """Advance the peripheral's time-driven behaviour by `dt_ns` (default: none)."""
         del dt_ns
 
+    def quiet_slices(self, slice_ns: int) -> int | None:
+        """How many whole fabric slices of `slice_ns` from now pass with nothing falling due
+        in this IP (None: no limit).  Over those, one `tick` of their sum leaves the same
+        state as a `tick` per slice: `Fabric.advance` merges them.  An IP whose `tick` does
+        anything must say when its next event falls (`slices_before_due`)."""
+        del slice_ns
+        return None
+
     def peek(self, offset: int) -> int:
         """The stored bits of the register at `offset`, with no read side effect."""
         self._declared(offset)
@@ -335,6 +343,12 @@ class Peripheral:
         values = self._values
         for field in fields:
             values[field.offset] |= field.mask
+
+
+def slices_before_due(remaining_ns: int, slice_ns: int) -> int:
+    """Whole slices of `slice_ns` that pass before the one in which a countdown with
+    `remaining_ns` left reaches zero (0 when it reaches zero in the next slice)."""
+    return max(0, -(-remaining_ns // slice_ns) - 1)
 
 
 def _write_stored(values: dict[int, int], reg: Register, masked: int) -> None:

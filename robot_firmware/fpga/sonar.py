@@ -22,7 +22,14 @@ import math
 from collections.abc import Callable
 
 from robot_firmware.fpga.clock import DEFAULT_FABRIC_CLOCK_HZ
-from robot_firmware.fpga.registers import WORD_MASK, Access, Field, Peripheral, Register
+from robot_firmware.fpga.registers import (
+    WORD_MASK,
+    Access,
+    Field,
+    Peripheral,
+    Register,
+    slices_before_due,
+)
 
 SPEED_OF_SOUND_MPS = 343.0
 NS_PER_S = 1_000_000_000
@@ -167,6 +174,11 @@ class Sonar(Peripheral):
         self._store(FILTERED_TICKS, self._width_filter(self._result_ticks))
         self._store(SAMPLES, (self._get(SAMPLES) + 1) & WORD_MASK)
         self._set_bits(EVENTS_DATA_READY)
+
+    def quiet_slices(self, slice_ns: int) -> int | None:
+        if self._remaining_ns is None:
+            return None
+        return slices_before_due(self._remaining_ns, slice_ns)
 
     # -- hardware side ---------------------------------------------------------------
 

@@ -16,7 +16,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from robot_firmware.fpga.registers import WORD_MASK, Access, Field, Peripheral, Register
+from robot_firmware.fpga.registers import (
+    WORD_MASK,
+    Access,
+    Field,
+    Peripheral,
+    Register,
+    slices_before_due,
+)
 
 KICK_MAGIC = 0x600D_D06E
 RESET_TIMEOUT_MS = 100
@@ -128,6 +135,11 @@ class Watchdog(Peripheral):
         if self._remaining_ns == 0:
             self._expire()
         self._publish()
+
+    def quiet_slices(self, slice_ns: int) -> int | None:
+        if not self._enabled or self._expired:
+            return None
+        return slices_before_due(self._remaining_ns, slice_ns)
 
     # -- hardware side ---------------------------------------------------------------
 

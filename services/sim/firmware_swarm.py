@@ -77,8 +77,7 @@ class FirmwareSwarm:
         duty = np.array([robot.fabric.hw_read_actuation().duty for robot in self.robots])
         world.advance(duty, self.period_ns)
         for robot in self.robots:
-            for _ in range(self.period_ns // self.fabric_step_ns):
-                robot.fabric.tick(self.fabric_step_ns)
+            robot.fabric.advance(self.period_ns, self.fabric_step_ns)
 
     def run(self, duration_s: float | None = None) -> dict[str, object]:
         ticks = round((duration_s or self.scenario.duration_s) * NS_PER_S / self.period_ns)
