@@ -13,16 +13,21 @@
   world to `radio/rx/robot2`, next to a raw Zenoh ping-pong through the same router (answered
   by a second process, as the world is one) and their ratio (goal: at most 3); and, for
   reference, a ping-pong answered inside the bench's own session, which Zenoh delivers
-  without the router (earlier versions of this bench took that one for the raw trip).
+  without the router (earlier versions of this bench took that one for the raw trip);
+* what handing work to another thread costs here: waking a sleeping thread with a
+  `threading.Event` and a Zenoh `put` (which wakes Zenoh's transmit thread), each after the
+  waker idled 2 ms (as between two ticks) and back to back: the waker's CPU time and the wall
+  time, per hand-over.
 
 Every figure is the median of several runs; machine and date are printed.
 
-    .venv/bin/python bench/swarm_runtime.py [--runs 3] [--only lockstep|realtime|hop]
+    .venv/bin/python bench/swarm_runtime.py [--runs 3] [--only lockstep|realtime|hop|wake]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
 import subprocess
@@ -30,6 +35,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -142,22 +148,28 @@ from swarm_config.credentials import read_credentials
 with open_client([sys.argv[1]], credentials=read_credentials(Path(sys.argv[2]))) as session:
     pong = session.declare_publisher("bench/pong")
     session.declare_subscriber("bench/ping", lambda sample: pong.put(sample.payload.to_bytes()))
+    session.declare_subscriber("bench/sink", lambda sample: None)
     print("echo up", flush=True)
     sys.stdin.read()
 """
 """A second process that answers `bench/ping` on `bench/pong` from its subscriber's callback:
-the raw round trip through the router that the radio hop is compared with."""
+the raw round trip through the router that the radio hop is compared with; it also takes
+`bench/sink` and does nothing with it."""
 
 
-def one_hop_latency_ms(samples: int) -> dict[str, list[float]]:
-    """Radio hop through the world (ideal profile); a raw ping-pong through the router to a
-    second process (`ECHO_PROCESS`); and a ping-pong answered inside the bench's own session,
-    which Zenoh delivers without the router."""
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    keys = SwarmKeys("lab")
-    # Logins as in a run, but no access control: the bench itself plays robot1 and robot2
-    # and pings on keys of its own.
+CLI = [sys.executable, "-m", "services.cli.main"]
+
+
+def quiet(args: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+@contextlib.contextmanager
+def router_and_echo() -> Iterator[tuple[str, dict[str, Path]]]:
+    """A router with the run's logins but no access control (the bench plays robots and uses
+    keys of its own), and `ECHO_PROCESS` logged in as robot3: the endpoint and the
+    credential files."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     credentials_dir = Path(tempfile.mkdtemp()) / "credentials"
     credentials = generate_credential_set("lab", ("robot1", "robot2", "robot3"))
     files = write_credential_set(credentials_dir, credentials)
@@ -165,17 +177,7 @@ def one_hop_latency_ms(samples: int) -> dict[str, list[float]]:
     document["access_control"]["enabled"] = False
     router_config = credentials_dir / "router.json5"
     write_private_file(router_config, json.dumps(document).encode())
-    cli = [sys.executable, "-m", "services.cli.main"]
-
-    def quiet(args: list[str]) -> subprocess.Popen[bytes]:
-        return subprocess.Popen(
-            args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-        )
-
-    router = quiet([*cli, "router", "--listen", endpoint, "--config", str(router_config)])
-    scenario = ["--scenario", "configs/scenarios/paper.yaml", "--radio", "ideal"]
-    login = ["--connect", endpoint, "--credentials", str(files["world"])]
-    world = quiet([*cli, "world", *scenario, *login])
+    router = quiet([*CLI, "router", "--listen", endpoint, "--config", str(router_config)])
     echo = subprocess.Popen(
         [sys.executable, "-c", ECHO_PROCESS, endpoint, str(files["robot3"])],
         cwd=ROOT,
@@ -185,59 +187,146 @@ def one_hop_latency_ms(samples: int) -> dict[str, list[float]]:
     )
     try:
         assert echo.stdout is not None and echo.stdout.readline().strip() == "echo up"
-        with open_client([endpoint], credentials=read_credentials(files["operator"])) as session:
-            got = threading.Event()
-            arrived: list[int] = []
-
-            def on_rx(sample) -> None:  # type: ignore[no-untyped-def]
-                arrived.append(time.perf_counter_ns())
-                got.set()
-
-            session.declare_subscriber(keys.radio_rx("robot2"), on_rx)
-            session.declare_subscriber("bench/pong", on_rx)
-            local = session.declare_subscriber(
-                "bench/local-ping", lambda s: session.put("bench/pong", s.payload.to_bytes())
-            )
-            time.sleep(2.0)
-
-            def measure(key: str, count: int) -> list[float]:
-                out = []
-                for k in range(count):
-                    got.clear()
-                    start = time.perf_counter_ns()
-                    session.put(key, k.to_bytes(8, "little") * 11)
-                    if got.wait(1.0):
-                        out.append((arrived[-1] - start) / 1e6)
-                    time.sleep(0.005)
-                return out
-
-            paths = {
-                "radio": keys.radio_tx("robot1"),
-                "router": "bench/ping",
-                "session": "bench/local-ping",
-            }
-            for key in paths.values():
-                measure(key, 50)  # warm up
-            # Interleaved in rounds, so that the machine's load weighs on every path alike.
-            figures: dict[str, list[float]] = {name: [] for name in paths}
-            rounds = 10
-            for _ in range(rounds):
-                for name, key in paths.items():
-                    figures[name] += measure(key, max(samples // rounds, 1))
-            local.undeclare()
-            return figures
+        yield endpoint, files
     finally:
         echo.communicate(timeout=30)
-        for p in (world, router):
-            p.terminate()
-            p.wait(timeout=30)
+        router.terminate()
+        router.wait(timeout=30)
+
+
+def one_hop_latency_ms(samples: int) -> dict[str, list[float]]:
+    """Radio hop through the world (ideal profile); a raw ping-pong through the router to a
+    second process (`ECHO_PROCESS`); and a ping-pong answered inside the bench's own session,
+    which Zenoh delivers without the router."""
+    keys = SwarmKeys("lab")
+    with router_and_echo() as (endpoint, files):
+        scenario = ["--scenario", "configs/scenarios/paper.yaml", "--radio", "ideal"]
+        login = ["--connect", endpoint, "--credentials", str(files["world"])]
+        world = quiet([*CLI, "world", *scenario, *login])
+        try:
+            return _hop_figures(endpoint, files, keys, samples)
+        finally:
+            world.terminate()
+            world.wait(timeout=30)
+
+
+def _hop_figures(
+    endpoint: str, files: dict[str, Path], keys: SwarmKeys, samples: int
+) -> dict[str, list[float]]:
+    """The three paths timed in interleaved rounds, `samples` each."""
+    with open_client([endpoint], credentials=read_credentials(files["operator"])) as session:
+        got = threading.Event()
+        arrived: list[int] = []
+
+        def on_rx(sample) -> None:  # type: ignore[no-untyped-def]
+            arrived.append(time.perf_counter_ns())
+            got.set()
+
+        session.declare_subscriber(keys.radio_rx("robot2"), on_rx)
+        session.declare_subscriber("bench/pong", on_rx)
+        local = session.declare_subscriber(
+            "bench/local-ping", lambda s: session.put("bench/pong", s.payload.to_bytes())
+        )
+        time.sleep(2.0)
+
+        def measure(key: str, count: int) -> list[float]:
+            out = []
+            for k in range(count):
+                got.clear()
+                start = time.perf_counter_ns()
+                session.put(key, k.to_bytes(8, "little") * 11)
+                if got.wait(1.0):
+                    out.append((arrived[-1] - start) / 1e6)
+                time.sleep(0.005)
+            return out
+
+        paths = {
+            "radio": keys.radio_tx("robot1"),
+            "router": "bench/ping",
+            "session": "bench/local-ping",
+        }
+        for key in paths.values():
+            measure(key, 50)  # warm up
+        # Interleaved in rounds, so that the machine's load weighs on every path alike.
+        figures: dict[str, list[float]] = {name: [] for name in paths}
+        rounds = 10
+        for _ in range(rounds):
+            for name, key in paths.items():
+                figures[name] += measure(key, max(samples // rounds, 1))
+        local.undeclare()
+        return figures
+
+
+IDLE_BEFORE_S = 0.002
+"""How long the waker sleeps before each timed wake-up: as a robot between two ticks."""
+
+
+def wake_costs_us(samples: int) -> dict[str, tuple[float, float]]:
+    """What handing work to another thread costs on this machine, per path: (p50 of the
+    waker's own CPU time, p50 of the wall time) in µs.  A robot does this a few times per
+    tick (Zenoh's callback thread waking the control loop, each first `put` of a tick waking
+    Zenoh's transmit thread), the world per tick and per frame."""
+    figures: dict[str, tuple[float, float]] = {}
+    wake, woken = threading.Event(), threading.Event()
+
+    def waiter() -> None:
+        while True:
+            wake.wait()
+            wake.clear()
+            woken.set()
+
+    threading.Thread(target=waiter, daemon=True).start()
+
+    def timed(action: Callable[[], None], idle_s: float) -> tuple[float, float]:
+        cpu, wall = [], []
+        for _ in range(samples):
+            if idle_s:
+                time.sleep(idle_s)
+            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+            action()
+            cpu.append(time.thread_time_ns() - c0)
+            wall.append(time.perf_counter_ns() - t0)
+        return statistics.median(cpu) / 1e3, statistics.median(wall) / 1e3
+
+    def event_round_trip() -> None:
+        wake.set()
+        woken.wait()
+        woken.clear()
+
+    figures["event_idle"] = timed(event_round_trip, IDLE_BEFORE_S)
+    figures["event_busy"] = timed(event_round_trip, 0.0)
+    with contextlib.ExitStack() as stack:
+        endpoint, files = stack.enter_context(router_and_echo())
+        operator = read_credentials(files["operator"])
+        session = stack.enter_context(open_client([endpoint], credentials=operator))
+        sink = session.declare_publisher("bench/sink")
+        payload = bytes(96)
+        time.sleep(1.0)
+        figures["put_idle"] = timed(lambda: sink.put(payload), IDLE_BEFORE_S)
+        figures["put_busy"] = timed(lambda: sink.put(payload), 0.0)
+    return figures
+
+
+def wake_table(samples: int, runs: int) -> None:
+    results = [wake_costs_us(samples) for _ in range(runs)]
+    labels = {
+        "event_idle": "threading.Event wake-up and answer, after 2 ms idle",
+        "event_busy": "threading.Event wake-up and answer, back to back",
+        "put_idle": "Zenoh put through the router, after 2 ms idle",
+        "put_busy": "Zenoh put through the router, back to back",
+    }
+    print(f"{'hand-over to another thread':<54} {'CPU µs':>7} {'wall µs':>8}")
+    for name, label in labels.items():
+        cpu = statistics.median(r[name][0] for r in results)
+        wall = statistics.median(r[name][1] for r in results)
+        print(f"{label:<54} {cpu:>7.1f} {wall:>8.1f}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--samples", type=int, default=500)
-    parser.add_argument("--only", choices=("lockstep", "realtime", "hop"), default=None)
+    parser.add_argument("--only", choices=("lockstep", "realtime", "hop", "wake"), default=None)
     args = parser.parse_args()
     print("# networked swarm runtime")
     for line in machine_lines():
@@ -258,6 +347,9 @@ def main() -> None:
         print()
     if args.only in (None, "hop"):
         hop_table(args.samples, args.runs)
+        print()
+    if args.only in (None, "wake"):
+        wake_table(args.samples, args.runs)
 
 
 def realtime_tables(runs: int) -> None:
