@@ -192,10 +192,13 @@ class RobotProcess:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self._frames.append(sample.payload.to_bytes())
-        # A lockstep tick waits for the frames its sense message announced.  In real time the
-        # next tick takes whatever has come: waking the loop for each of the 20 (N - 1)
-        # frames a second would cost a wake-up per frame for nothing.
-        if self.scheduler.lockstep:
+        # Only a lockstep tick whose sense message is in and whose announced frames are not
+        # all here waits for this one.  Otherwise the next tick (real time) or the sense
+        # message's own wake-up (lockstep) takes it: waking the loop for each of the 20 (N - 1)
+        # frames a second would cost a thread wake-up per frame for nothing.  The frame is
+        # queued before the check, so a loop that has not yet applied the sense message
+        # counts it when it does.
+        if self.scheduler.awaits_frames:
             self._wake.set()
 
     def _on_peer_token(self, sample: zenoh.Sample) -> None:

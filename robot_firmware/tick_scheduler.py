@@ -200,6 +200,13 @@ class TickScheduler:
     def has_time(self) -> bool:
         return self._last is not None
 
+    @property
+    def awaits_frames(self) -> bool:
+        """Lockstep: the newest sense message is applied and its tick waits for the radio
+        frames it announced.  Only then does a frame's arrival need to wake the loop: frames
+        that come before their sense message are counted when it comes."""
+        return self._pending is not None and self._pending.radio_frames > 0
+
     def sensed(
         self,
         t_ns: int,

@@ -226,6 +226,24 @@ def test_lockstep_waits_for_the_frames_its_sense_message_announces() -> None:
     assert scheduler.poll(0, frames_queued=2) == RunTick(3 * PERIOD_NS, 3, 0)
 
 
+def test_only_a_lockstep_tick_short_of_its_announced_frames_awaits_frames() -> None:
+    """What decides whether a frame's arrival wakes the robot's loop (robot_firmware/runtime.py
+    `_on_frame`)."""
+    scheduler = TickScheduler(PERIOD_NS)
+    assert not scheduler.awaits_frames  # no sense message yet: it will wake the loop itself
+    real_time(scheduler, 0, 0)
+    assert not scheduler.awaits_frames  # real time: the next tick takes what has come
+    lockstep(scheduler, tick=3, frames=0)
+    assert not scheduler.awaits_frames
+    assert isinstance(scheduler.poll(0, frames_queued=0), RunTick)
+    lockstep(scheduler, tick=4, frames=2)
+    assert scheduler.awaits_frames
+    assert isinstance(scheduler.poll(0, frames_queued=1), Wait)
+    assert scheduler.awaits_frames
+    assert isinstance(scheduler.poll(0, frames_queued=2), RunTick)
+    assert not scheduler.awaits_frames  # answered: the next frames are the next tick's
+
+
 def test_after_a_rejoin_only_the_newest_queued_lockstep_tick_is_answered() -> None:
     scheduler = TickScheduler(PERIOD_NS)
     lockstep(scheduler, tick=40, frames=0)
