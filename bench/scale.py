@@ -12,6 +12,8 @@ For each N (default 3, 6, 12, 24, 36, 48) it generates a wedge of N robots
 * the world's real-time factor (simulated seconds per wall second, `real_time_factor` of a
   real-time world's summary.json) over the window, and how far simulated time is behind wall
   time at the end (world lag);
+* the world loop's own lag: how late its sense ticks left against their due times, p99 and max
+  over the run (`world_loop` of summary.json; a hold of the starvation guard is not in it);
 * CPU (% of one core, /proc) per process kind: world, robot (median, max), router, launcher;
 * memory per process (MiB): RSS, and PSS (shared library pages divided among the processes
   that map them) for the robots;
@@ -72,6 +74,9 @@ class RunFigures:
     real_time_factor_run: float | None
     world_lag_s: float | None
     """Wall time minus simulated time at the end."""
+    sense_late_p99_ms: float | None
+    sense_late_max_ms: float | None
+    """The world loop's own lag over the run (summary.json `world_loop`)."""
     cpu_percent: dict[str, float | None]
     rss_mib: dict[str, float | None]
     pss_mib: dict[str, float | None]
@@ -152,6 +157,8 @@ def run_once(robots: int, duration_s: float, seed: int, work: Path) -> RunFigure
         real_time_factor=factor,
         real_time_factor_run=last.get("real_time_factor"),
         world_lag_s=None if wall_last is None else wall_last - float(last["duration_s"]),
+        sense_late_p99_ms=(last.get("world_loop") or {}).get("sense_late_p99_ms"),
+        sense_late_max_ms=(last.get("world_loop") or {}).get("sense_late_max_ms"),
         cpu_percent=cpu_percent,
         rss_mib={name: rss for name, (rss, _) in memory.items()},
         pss_mib={name: pss for name, (_, pss) in memory.items()},
@@ -182,6 +189,8 @@ class SizeFigures:
     jitter_p99_max_ms: float | None
     real_time_factor: float | None
     world_lag_s: float | None
+    sense_late_p99_ms: float | None
+    sense_late_max_ms: float | None
     cpu_world: float | None
     cpu_robot_median: float | None
     cpu_robot_max: float | None
@@ -226,6 +235,8 @@ def summarise(runs: Sequence[RunFigures]) -> SizeFigures:
         jitter_p99_max_ms=per_run(lambda r: robots(r.jitter_p99_ms, max)),
         real_time_factor=per_run(lambda r: r.real_time_factor),
         world_lag_s=per_run(lambda r: r.world_lag_s),
+        sense_late_p99_ms=per_run(lambda r: r.sense_late_p99_ms),
+        sense_late_max_ms=per_run(lambda r: r.sense_late_max_ms),
         cpu_world=per_run(lambda r: r.cpu_percent.get("world")),
         cpu_robot_median=per_run(lambda r: robots(r.cpu_percent, statistics.median)),
         cpu_robot_max=per_run(lambda r: robots(r.cpu_percent, max)),
@@ -242,7 +253,8 @@ def summarise(runs: Sequence[RunFigures]) -> SizeFigures:
 
 HEADER = (
     "| N | runs | start-up s | misses median % | misses max % | whole run max % | "
-    "jitter p99 max ms | real-time factor | world lag s | CPU world % | CPU robot median % | "
+    "jitter p99 max ms | real-time factor | world lag s | world loop late p99 ms | "
+    "world loop late max ms | CPU world % | CPU robot median % | "
     "CPU robot max % | CPU router % | CPU launcher % | RSS world MiB | RSS robot median MiB | "
     "RSS robot max MiB | PSS robot median MiB | collisions | formation max m | holds |"
 )
@@ -263,6 +275,8 @@ def table_row(s: SizeFigures) -> str:
         _cell(s.jitter_p99_max_ms, ".2f"),
         _cell(s.real_time_factor, ".3f"),
         _cell(s.world_lag_s, ".2f"),
+        _cell(s.sense_late_p99_ms, ".2f"),
+        _cell(s.sense_late_max_ms, ".1f"),
         _cell(s.cpu_world, ".0f"),
         _cell(s.cpu_robot_median, ".1f"),
         _cell(s.cpu_robot_max, ".1f"),

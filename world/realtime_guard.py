@@ -53,6 +53,7 @@ ratio since time started.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -349,3 +350,56 @@ class RealTimeFactorWindow:
         if wall_s - wall0_s <= 0.0:
             return None
         return (sim_s - sim0_s) / (wall_s - wall0_s)
+
+
+@dataclass
+class SenseLateness:
+    """The world loop's own lag: how late a sense tick's messages left against its due time
+    T(k), in real time.
+
+    The loop sees that the guard's clock (`RealTimeGuard.sim_time_ns`) has reached T(k): it
+    was late by the clock's reading minus T(k) then, plus the wall time from that check to the
+    messages' departure (the physics catching up, the tick's faults, the frames due).  A hold
+    for a starved robot stops that clock, so it does not count here (it is in `GuardStats`):
+    this is the lag the world's own work made.  A
+    loop that keeps up publishes within a fraction of a period; one that falls behind its
+    physics and relaying shows it here before the real-time factor drops.  Percentiles are over
+    the last `window` ticks, the maximum and the count of ticks late by a period or more over
+    all of them."""
+
+    period_ns: int
+    window: int = 20_000
+    ticks: int = 0
+    max_ns: int = 0
+    late_by_a_period: int = 0
+    recent_ns: deque[int] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.recent_ns = deque(maxlen=self.window)
+
+    def record(self, late_ns: int) -> None:
+        """Tick k's messages left when the world's clock read T(k) + `late_ns`."""
+        late_ns = max(late_ns, 0)
+        self.ticks += 1
+        self.recent_ns.append(late_ns)
+        if late_ns > self.max_ns:
+            self.max_ns = late_ns
+        if late_ns >= self.period_ns:
+            self.late_by_a_period += 1
+
+    def as_dict(self) -> dict[str, object]:
+        """The figures for summary.json (`world_loop`; docs/summary-schema.md)."""
+        recent = sorted(self.recent_ns)
+
+        def percentile_ms(q: float) -> float | None:
+            if not recent:
+                return None
+            return round(recent[max(0, math.ceil(q * len(recent)) - 1)] / 1e6, 3)  # nearest rank
+
+        return {
+            "sense_ticks": self.ticks,
+            "sense_late_p50_ms": percentile_ms(0.50),
+            "sense_late_p99_ms": percentile_ms(0.99),
+            "sense_late_max_ms": round(self.max_ns / 1e6, 3),
+            "sense_late_by_a_period": self.late_by_a_period,
+        }

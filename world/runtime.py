@@ -149,7 +149,7 @@ from world.faults import (
 )
 from world.lockstep import LockstepBarrier, LockstepPacer, LockstepProfile
 from world.metrics import FormationLayout, reference_points, sample_errors
-from world.realtime_guard import LEAD_PERIODS, RealTimeGuard
+from world.realtime_guard import LEAD_PERIODS, RealTimeGuard, SenseLateness
 from world.summary import build_summary, summarise_events, write_json_atomically
 
 log = logging.getLogger("swarm.world")
@@ -306,6 +306,8 @@ class WorldProcess:
             enabled=config.starvation_guard and not config.lockstep,
         )
         """Real time: holds simulated time back for starved robots (world/realtime_guard.py)."""
+        self.sense_lateness = SenseLateness(self.period_ns)
+        """Real time: how late the loop's own work made each sense tick."""
         self._sense_sent: tuple[SensePins, int] | None = None
         self._sense_sent_mono_ns = 0
         self._sense_out_mono_ns = 0
@@ -1023,6 +1025,10 @@ class WorldProcess:
                     advance_to(self.next_sense_ns)
                     self._tick_boundary()
                     self._publish_sense(lockstep=False, delivered=self._deliver_radio())
+                    # Late at the check, plus the wall time to the messages' departure.
+                    self.sense_lateness.record(
+                        now_sim - self.next_sense_ns + self._sense_out_mono_ns - mono
+                    )
                     clock_pub.put(
                         encode_clock(
                             ClockMessage(
@@ -1139,6 +1145,7 @@ class WorldProcess:
         if not self.config.lockstep:  # a lockstep summary holds no wall-clock figure
             summary["real_time_factor"] = self.real_time_factor()
             summary["starvation_guard"] = self.guard.stats().as_dict()
+            summary["world_loop"] = self.sense_lateness.as_dict()
         else:
             summary["lockstep_excused"] = dict(self.barrier.excused)
         summary["control_timing"] = {

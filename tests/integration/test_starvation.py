@@ -88,6 +88,12 @@ def test_a_starved_real_time_swarm_slows_down_instead_of_colliding(
         f"min robot separation {starved['metrics']['min_robot_separation_m']} m"
     )
     assert guard["enabled"] is True
+    # The world's own loop lag: one figure per sense tick published in real time (the paper's
+    # 10 ms period), the percentiles ordered.
+    loop = summary["world_loop"]
+    assert abs(loop["sense_ticks"] - summary["duration_s"] / 0.010) <= 2, loop
+    assert 0.0 <= loop["sense_late_p50_ms"] <= loop["sense_late_p99_ms"]
+    assert loop["sense_late_p99_ms"] <= loop["sense_late_max_ms"]
     assert isinstance(starved["real_time_factor"], float)
     assert isinstance(summary["real_time_factor"], float)
     assert starved["metrics"]["collisions"] == 0

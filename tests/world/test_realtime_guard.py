@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from world.realtime_guard import RealTimeFactorWindow, RealTimeGuard
+from world.realtime_guard import RealTimeFactorWindow, RealTimeGuard, SenseLateness
 
 PERIOD_NS = 10_000_000
 MS = 1_000_000
@@ -275,3 +275,29 @@ def test_the_blind_time_of_a_starved_robot_is_measured_and_bounded_by_the_guard(
     else:
         assert blind_s["robot2"] == pytest.approx(0.19, abs=0.002)  # 200 ms - tick 0's period
     assert blind_s["robot1"] <= PERIOD_NS / 1e9
+
+
+def test_sense_lateness_gives_nearest_rank_percentiles_the_maximum_and_late_ticks() -> None:
+    lateness = SenseLateness(period_ns=10 * MS)
+    for late_ms in range(1, 101):  # 1..100 ms, shuffled order must not matter
+        lateness.record(((late_ms * 37) % 100 + 1) * MS)
+    figures = lateness.as_dict()
+    assert figures["sense_ticks"] == 100
+    assert figures["sense_late_p50_ms"] == 50.0
+    assert figures["sense_late_p99_ms"] == 99.0
+    assert figures["sense_late_max_ms"] == 100.0
+    assert figures["sense_late_by_a_period"] == 91  # 10..100 ms
+
+
+def test_sense_lateness_clamps_an_early_reading_and_windows_its_percentiles() -> None:
+    lateness = SenseLateness(period_ns=10 * MS, window=3)
+    lateness.record(-5 * MS)  # the clock read before T(k): not late
+    lateness.record(40 * MS)
+    for _ in range(3):
+        lateness.record(2 * MS)
+    figures = lateness.as_dict()
+    assert figures["sense_ticks"] == 5
+    assert figures["sense_late_p99_ms"] == 2.0  # the 40 ms tick left the window
+    assert figures["sense_late_max_ms"] == 40.0  # ...but not the run's maximum
+    assert figures["sense_late_by_a_period"] == 1
+    assert SenseLateness(period_ns=MS).as_dict()["sense_late_p50_ms"] is None
