@@ -529,4 +529,5 @@ class RobotProcess:
         }
 
     def _serve_queries(self) -> None:
-        self._admin.serve(self.admin_handlers())
+        if self._admin.pending:  # the loop looks twice a period; a query is rare
+            self._admin.serve(self.admin_handlers())

@@ -794,6 +794,8 @@ class WorldProcess:
         stopped waiting for."""
         stale = self.engine.t_ns - self.act_seen_sim_ns > self.config.act_timeout_ms * 1e6
         braked = self.guard.braked()
+        if not braked and not stale.any() and len(self.live) == len(self.names):
+            return self.duty.copy()  # every robot drives (the loop's case, event after event)
         lapsed = np.array([name in braked for name in self.names])
         return np.where((stale | self._dead() | lapsed)[:, None], 0.0, self.duty)
 
@@ -1184,7 +1186,8 @@ class WorldProcess:
         }
 
     def _serve_queries(self) -> None:
-        self._admin.serve(self.admin_handlers())
+        if self._admin.pending:
+            self._admin.serve(self.admin_handlers())
 
     # -- faults (world/faults.py): the hub's port --------------------------------------------
 
@@ -1197,7 +1200,8 @@ class WorldProcess:
         while (entry := self.schedule.next_due(self.engine.t_ns)) is not None:
             log.info("campaign: %s at t = %.3f s", entry.fault.fault, self.engine.t_s)
             self.faults.inject(entry.fault, "schedule")
-        self._fault_admin.serve(self.admin_handlers())
+        if self._fault_admin.pending:
+            self._fault_admin.serve(self.admin_handlers())
         self.faults.settle()
 
     @property

@@ -17,19 +17,32 @@ from numpy.typing import ArrayLike, DTypeLike, NDArray
 def as_rows(
     *arguments: tuple[ArrayLike, int, DTypeLike],
 ) -> tuple[tuple[int, ...], list[NDArray[Any]]]:
-    """(array, core dimensions, dtype) per argument -> batch shape and (R, *core) rows."""
-    arrays = [np.asarray(a, dtype=dtype) for a, _, dtype in arguments]
-    cores = [
-        a.shape[a.ndim - core :] if core else ()
-        for a, (_, core, _) in zip(arrays, arguments, strict=True)
-    ]
-    batch = np.broadcast_shapes(
-        *(a.shape[: a.ndim - len(core)] for a, core in zip(arrays, cores, strict=True))
-    )
-    rows = [
-        (a if a.shape == batch + core else np.broadcast_to(a, batch + core)).reshape((-1,) + core)
-        for a, core in zip(arrays, cores, strict=True)
-    ]
+    """(array, core dimensions, dtype) per argument -> batch shape and (R, *core) rows.
+
+    Arrays of the wanted dtype are taken as they are, and when every argument has the same
+    batch part (the world's and the batch simulator's state, every step) each is only
+    reshaped: the broadcast is worked out only for arguments that differ."""
+    arrays = []
+    batches = []
+    for a, core, dtype in arguments:
+        wanted = _DTYPES.get(dtype) or np.dtype(dtype)
+        if type(a) is not np.ndarray or a.dtype is not wanted:
+            a = np.asarray(a, wanted)
+        arrays.append(a)
+        batches.append(a.shape[: a.ndim - core])
+    batch = batches[0]
+    if any(b != batch for b in batches):
+        batch = np.broadcast_shapes(*batches)
+    if len(batch) == 1:  # already rows wherever the batch is the common one
+        rows = [
+            a if b == batch else np.broadcast_to(a, batch + a.shape[a.ndim - core :])
+            for a, b, (_, core, _) in zip(arrays, batches, arguments, strict=True)
+        ]
+        return batch, rows
+    rows = []
+    for a, b, (_, core, _) in zip(arrays, batches, arguments, strict=True):
+        shape = a.shape[a.ndim - core :]
+        rows.append((a if b == batch else np.broadcast_to(a, batch + shape)).reshape((-1,) + shape))
     return batch, rows
 
 

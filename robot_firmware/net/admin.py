@@ -57,6 +57,12 @@ class AdminQueue:
         """The queryable's callback: queue and return."""
         self._queries.put(query)
 
+    @property
+    def pending(self) -> bool:
+        """Whether a query waits (one that comes just after the answer waits for the next
+        look)."""
+        return not self._queries.empty()
+
     def serve(self, handlers: Mapping[str, Handler]) -> int:
         """Answer every queued query; returns how many were answered."""
         served = 0

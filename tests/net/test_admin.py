@@ -9,7 +9,7 @@ from pydantic import BaseModel
 
 from robot_firmware.fpga.address_map import BRIDGE_BASE
 from robot_firmware.fpga.fabric import Fabric
-from robot_firmware.net.admin import answer, reply_as_json
+from robot_firmware.net.admin import AdminQueue, answer, reply_as_json
 from robot_firmware.net.messages import (
     AdminError,
     KillReply,
@@ -117,3 +117,34 @@ def test_malformed_regs_requests_are_refused_with_the_field_named() -> None:
     assert regs(fabric, {"op": "read", "address": SYSID_SCRATCH}) == RegsAccessReply(
         address=SYSID_SCRATCH, value=0, name="sysid.SCRATCH"
     )
+
+
+class _QueryStandIn:
+    """What `AdminQueue.serve` reads of a zenoh query, and the reply it sends."""
+
+    def __init__(self, verb: str) -> None:
+        self.key_expr = f"swarm/lab/admin/robot1/{verb}"
+        self.payload = None
+        self.replies: list[bytes] = []
+
+    def reply(self, _key_expr: object, payload: bytes) -> None:
+        self.replies.append(payload)
+
+
+def test_the_admin_queue_says_when_a_query_waits_and_serves_it_once() -> None:
+    admin = AdminQueue()
+    assert not admin.pending
+    query = _QueryStandIn("status")
+    admin.on_query(query)  # type: ignore[arg-type]
+    assert admin.pending
+    calls: list[bytes] = []
+
+    def status(body: bytes) -> AdminError:
+        calls.append(body)
+        return AdminError(error="stand-in")
+
+    assert admin.serve({"status": status}) == 1
+    assert calls == [b""]
+    assert len(query.replies) == 1 and b"stand-in" in query.replies[0]
+    assert not admin.pending
+    assert admin.serve({"status": status}) == 0
