@@ -155,6 +155,8 @@ from world.summary import build_summary, summarise_events, write_json_atomically
 log = logging.getLogger("swarm.world")
 
 MAX_PHYSICS_STEP_NS = 10_000_000
+ACTS_NEVER_WAKE = 1 << 30
+"""A queue length no act count reaches: the real-time world's act threshold."""
 """Longest exact physics step; contacts are resolved at least this often."""
 TELEMETRY_DELAY_PERIODS = 2
 """Lockstep: a telemetry sample stamped t is applied at the tick boundary t + this many
@@ -331,10 +333,12 @@ class WorldProcess:
         self._fault_admin = AdminQueue()
         """Queries of the `fault` verb: served only at a tick boundary."""
         self._wake = threading.Event()
-        self._acts_wake_at = 1
+        self._acts_wake_at = 1 if config.lockstep else ACTS_NEVER_WAKE
         self._frames_wake_at = 1
         """The callbacks wake the main loop once this many acts (frames) are queued: in
-        lockstep, what the tick still waits for (`_await_answers`), else every one."""
+        lockstep, what the tick still waits for (`_await_answers`), else every one.  In real
+        time an act wakes it only while the starvation guard holds the time (`_run_realtime`
+        says why)."""
         self._telemetry_wanted = False
         """Lockstep: a tick boundary waits for telemetry (its callback wakes the loop)."""
         self.stop = threading.Event()
@@ -482,7 +486,7 @@ class WorldProcess:
     def _on_act(self, sample: zenoh.Sample) -> None:
         robot = SwarmKeys.chunk(str(sample.key_expr), 3)
         self._acts.put((robot, sample.payload.to_bytes(), time.monotonic_ns()))
-        if self._acts.qsize() >= self._acts_wake_at:
+        if self._acts.qsize() >= self._acts_wake_at or self.guard.holding:
             self._wake.set()
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
@@ -978,7 +982,14 @@ class WorldProcess:
         beyond the period the slowest live robot has answered.  While it is held, the newest
         sense messages are repeated every period.  The physics is integrated exactly from event
         to event (an act changes a duty, a frame falls due, a sense message is due):
-        `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost."""
+        `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost.
+
+        An act does not wake the loop unless the guard holds the time: it carries its arrival
+        instant, and the loop, which drains the acts before it moves the physics on, catches
+        the physics up to that instant before it applies the act, so the duty changes when the
+        act came all the same.  The answers reach the guard at the latest at the next sense
+        tick, within its lead of two periods; one wake-up per act (N per period) would cost
+        the loop an iteration and a physics step each."""
         end = self._end_tick()
         guard = self.guard
         # A resumed world carries on from the checkpoint's time.
@@ -1005,7 +1016,7 @@ class WorldProcess:
                     due = min(due, frame_due)
                 mono = time.monotonic_ns()
                 now_sim = guard.sim_time_ns(mono)
-                if now_sim < due:
+                if now_sim < due and not (guard.holding and not self._acts.empty()):
                     wait_ns = due - now_sim
                     if guard.holding:  # until an act comes, or the sense messages are repeated
                         wait_ns = min(wait_ns, self._sense_sent_mono_ns + self.period_ns - mono)
