@@ -257,7 +257,7 @@ class Firmware:
         points = sonar_beam_points(
             self.state.estimator.pose, np.where(heard, self.sonar_gap_m, 0.0), self.mission.params
         )
-        return tuple((float(x), float(y)) for x, y in points[heard])
+        return tuple((x, y) for x, y in points[heard].tolist())
 
     def set_rule_base(self, rule_base: FuzzyRuleBase) -> None:
         """Use another fuzzy scheduler from the next tick on (call between ticks)."""

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -40,7 +41,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
-import numpy as np
 import yaml
 import zenoh
 from pydantic import (
@@ -398,6 +398,8 @@ class RobotProcess:
         }
 
     def _telemetry_fields(self, now_ns: int) -> dict[str, Any]:
+        """Plain Python values of the message's types (`tolist` turns float64 arrays into
+        floats in one call each)."""
         report = self.last_report
         est = self.firmware.state.estimator
         timing = self.scheduler.timing
@@ -407,7 +409,7 @@ class RobotProcess:
             "role": "leader" if self.firmware.is_leader else "follower",
             **self._leadership_fields(),
             "localised": bool(est.localised),
-            "estimate": tuple(float(v) for v in est.pose),
+            "estimate": tuple(est.pose.tolist()),
             "frames": self.firmware.decoder.counters.as_dict(),
             "bus_errors": self.drivers.bus_errors,
             "malformed_sense": self.sense_counters.dropped_total,
@@ -417,14 +419,14 @@ class RobotProcess:
             "safe_stops": self.scheduler.safe_stops,
             "sonar_failed": self.firmware.sonar_health.failed,
             "sonar_failures": self.firmware.sonar_health.failures,
-            "timing": LoopTimingReport(
+            "timing": LoopTimingReport.model_construct(
                 ticks=timing.ticks,
                 deadline_misses=timing.deadline_misses,
                 period_jitter_p99_ms=self._jitter_p99_ms,
                 recent_miss_ticks=tuple(timing.recent_miss_ticks),
             ),
             "sonar_range_m": tuple(
-                float(g) if np.isfinite(g) else None for g in self.firmware.sonar_gap_m
+                g if math.isfinite(g) else None for g in self.firmware.sonar_gap_m.tolist()
             ),
             "sonar_echoes_m": self.firmware.sonar_echo_points_m(),
             "register_faults": self.fabric.faults.labels,
@@ -432,14 +434,14 @@ class RobotProcess:
         if report is not None:
             o = report.outputs
             fields.update(
-                desired=tuple(float(v) for v in o.desired_pose),
-                error=tuple(float(v) for v in o.error),
-                delta_k=tuple(float(v) for v in o.delta_k),
-                kp=tuple(float(v) for v in o.kp),
-                ki=tuple(float(v) for v in o.ki),
-                kd=tuple(float(v) for v in o.kd),
-                repulsion_mps=tuple(float(v) for v in o.repulsion_mps),
-                wheel_speed_radps=tuple(float(v) for v in o.wheel_speed_radps),
+                desired=tuple(o.desired_pose.tolist()),
+                error=tuple(o.error.tolist()),
+                delta_k=tuple(o.delta_k.tolist()),
+                kp=tuple(o.kp.tolist()),
+                ki=tuple(o.ki.tolist()),
+                kd=tuple(o.kd.tolist()),
+                repulsion_mps=tuple(o.repulsion_mps.tolist()),
+                wheel_speed_radps=tuple(o.wheel_speed_radps.tolist()),
                 active=bool(o.active),
             )
         return fields

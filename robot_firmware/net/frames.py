@@ -367,6 +367,10 @@ def parse_frame(
     return _parse(data, key, swarm_hash, None if run_id is None else _check_run_id(run_id))
 
 
+_DROP_REASON_VALUES = {reason: reason.value for reason in DropReason}
+"""Each reason's value, looked up once (an enum's `.value` is a descriptor call)."""
+
+
 @dataclass(slots=True)
 class FrameCounters:
     """Frames seen by one decoder: accepted, and dropped per reason (every reason present)."""
@@ -385,8 +389,9 @@ class FrameCounters:
 
     def as_dict(self) -> dict[str, int]:
         """Flat counters for telemetry: `accepted` and one entry per drop reason value."""
+        values = _DROP_REASON_VALUES
         return {"accepted": self.accepted} | {
-            reason.value: count for reason, count in self.dropped.items()
+            values[reason]: count for reason, count in self.dropped.items()
         }
 
 

@@ -84,6 +84,10 @@ class WireDropReason(enum.Enum):
     UNKNOWN_ROBOT = "unknown_robot"
 
 
+_WIRE_DROP_REASON_VALUES = {reason: reason.value for reason in WireDropReason}
+"""Each reason's value, looked up once (an enum's `.value` is a descriptor call)."""
+
+
 @dataclass(slots=True)
 class WireCounters:
     """Messages of one kind seen by one receiver: accepted, and refused per reason (every
@@ -107,7 +111,8 @@ class WireCounters:
 
     def dropped_as_dict(self) -> dict[str, int]:
         """One entry per reason value, for telemetry and summary.json."""
-        return {reason.value: count for reason, count in self.dropped.items()}
+        values = _WIRE_DROP_REASON_VALUES
+        return {values[reason]: count for reason, count in self.dropped.items()}
 
 
 @dataclass(frozen=True)
