@@ -155,9 +155,9 @@ from world.summary import build_summary, summarise_events, write_json_atomically
 log = logging.getLogger("swarm.world")
 
 MAX_PHYSICS_STEP_NS = 10_000_000
+"""Longest exact physics step; contacts are resolved at least this often."""
 ACTS_NEVER_WAKE = 1 << 30
 """A queue length no act count reaches: the real-time world's act threshold."""
-"""Longest exact physics step; contacts are resolved at least this often."""
 TELEMETRY_DELAY_PERIODS = 2
 """Lockstep: a telemetry sample stamped t is applied at the tick boundary t + this many
 control periods (world/faults.py `TelemetryGate`)."""
