@@ -14,7 +14,8 @@ Clock modes:
   messages carry the tick of the newest sense message it had): a starved host slows the run
   down (real-time factor < 1) instead of letting robots drive blind, and a frozen robot holds
   it for at most `starvation_hold_limit_s`.  The physics is integrated exactly from event to
-  event (duty change, frame due, sense due), sense messages go out every control period
+  event (duty change at an act's arrival, frame due, sense due; an act is applied at the loop's
+  next pass and wakes it only while the time is held), sense messages go out every control period
   (repeated, with no new fix, while the time is held); a body whose last act message is older than
   `act_timeout_ms` of simulated time, or that the guard stopped waiting for, is braked;
 * lockstep: per control period the world sends every robot its sense message with the tick
