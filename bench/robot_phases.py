@@ -109,6 +109,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.robots < 1 or args.duration <= 0:
         parser.error("--robots is at least 1 and --duration positive")
+    if args.keep is not None and args.keep.exists():
+        parser.error(f"--keep {args.keep}: it exists; name a new directory")
     print("# phases of the main loops in a running swarm (thread CPU, real time)")
     for line in machine_lines():
         print(line)
