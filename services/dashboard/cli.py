@@ -86,6 +86,11 @@ def run_dashboard(args: argparse.Namespace) -> int:
             print(f"recording to {service.recording_path}")
         if service.kept_recording is not None:
             print(f"previous recording kept as {service.kept_recording}")
+        if service.kept_recording_cut_bytes:
+            print(
+                f"  its last chunk was half written when the dashboard stopped: "
+                f"{service.kept_recording_cut_bytes} bytes cut off its end"
+            )
         sys.stdout.flush()
 
     try:
@@ -158,7 +163,8 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
             "leader's tracking error (Fig. 12), the formation errors (Fig. 13), the fuzzy-"
             "scheduled PID gains and the radio's delivery ratio and latency, on the simulated "
             "time line. Prints the URL to open. Stops on Ctrl-C or SIGTERM. A previous "
-            "DIR/dashboard.rrd is kept as DIR/dashboard-<n>.rrd."
+            "DIR/dashboard.rrd is kept as DIR/dashboard-<n>.rrd; if a kill left its last chunk "
+            "half written, that chunk is cut off, so every reader opens the file."
         ),
     )
     dashboard.add_argument(

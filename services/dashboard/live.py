@@ -13,7 +13,8 @@ One Rerun recording goes to two sinks at once: a gRPC server that the web viewer
 (it keeps up to `server_memory_limit` of data for viewers that connect late; static data is
 never dropped) and `<out>/dashboard.rrd`. A dashboard restarted on the same directory keeps the
 previous file as `dashboard-<n>.rrd`. A file cut off by a kill has no footer but stays readable
-up to its last flushed chunk.
+up to its last flushed chunk: a chunk the kill caught half written is cut off the kept file
+(`recording_file.trim_partial_message`), so Rerun's Python reader opens it too.
 
 The session is opened on a helper thread because opening waits for the router: a SIGTERM or
 Ctrl-C still stops the dashboard while the swarm is not up.
@@ -50,6 +51,7 @@ from robot_firmware.net.messages import (
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
+from services.dashboard.recording_file import trim_partial_message
 from services.dashboard.scene import SwarmScene, Update
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
@@ -212,6 +214,8 @@ class DashboardService:
         self.stop = threading.Event()
         self.recording_path = None if config.out_dir is None else config.out_dir / RECORDING_FILE
         self.kept_recording: Path | None = None
+        self.kept_recording_cut_bytes = 0
+        """Bytes of a half-written chunk cut off the kept recording's end."""
         self.url = viewer_url(config.host, config.web_port, config.grpc_port)
         self._inbox: queue.Queue[_Sample] = queue.Queue(maxsize=config.queue_size)
         self.dropped_samples = 0
@@ -292,6 +296,8 @@ class DashboardService:
         if self.recording_path is not None:
             self.recording_path.parent.mkdir(parents=True, exist_ok=True)
             self.kept_recording = keep_previous_recording(self.recording_path)
+            if self.kept_recording is not None:
+                self.kept_recording_cut_bytes = trim_partial_message(self.kept_recording)
             sinks.append(rr.FileSink(str(self.recording_path)))
         blueprint = default_blueprint(self.scene.map_bounds_m())
         rr.set_sinks(*sinks, default_blueprint=blueprint, recording=recording)

@@ -183,6 +183,38 @@ def read_recording(path: Path) -> dict[str, EntityData]:
     return entities
 
 
+FINISHED_RECORDING_CHUNKS = 12
+
+
+@pytest.fixture(scope="session")
+def finished_recording(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """A real recording stopped cleanly: one chunk per logged pose, then End with its footer."""
+    import rerun as rr
+
+    path = tmp_path_factory.mktemp("rrd") / "finished.rrd"
+    recording = rr.RecordingStream("recording-file-test")
+    recording.save(str(path))
+    for i in range(FINISHED_RECORDING_CHUNKS):
+        recording.set_time("sim_time", duration=i * 0.05)
+        rr.log("/map/robots/robot1", rr.Points2D([[float(i), 2.0 * i]]), recording=recording)
+        recording.flush(timeout_sec=5.0)
+    recording.disconnect()
+    return path.read_bytes()
+
+
+def message_ends(data: bytes) -> list[int]:
+    """Where each message of a recording ends, from its headers, up to and including End."""
+    from services.dashboard.recording_file import END_KIND, MESSAGE_HEADER, STREAM_HEADER_BYTES
+
+    ends, offset = [], STREAM_HEADER_BYTES
+    while True:
+        kind, length = MESSAGE_HEADER.unpack_from(data, offset)
+        offset += MESSAGE_HEADER.size + length
+        ends.append(offset)
+        if kind == END_KIND:
+            return ends
+
+
 def wait_until(predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

@@ -13,7 +13,15 @@ import pytest
 from services.dashboard.cli import add_dashboard_parsers, run_dashboard, run_replay
 from services.dashboard.live import DashboardConfig
 from swarm_config.credentials import DASHBOARD, generate_credential_set, write_credential_set
-from tests.dashboard.conftest import PAPER, Child, free_port, read_recording, start
+from tests.dashboard.conftest import (
+    FINISHED_RECORDING_CHUNKS,
+    PAPER,
+    Child,
+    free_port,
+    message_ends,
+    read_recording,
+    start,
+)
 
 
 @pytest.fixture
@@ -110,3 +118,26 @@ def test_dashboard_waiting_for_an_absent_router_stops_on_sigterm(
         warnings.simplefilter("error")  # a clean stop writes the footer: no legacy warning
         recording = read_recording(tmp_path / "dashboard.rrd")
     assert recording["/map/reference_path"].static
+
+
+def test_a_restarted_dashboard_cuts_a_half_written_chunk_off_the_kept_file(
+    tmp_path: Path, children: list[Child], dashboard_credentials: str, finished_recording: bytes
+) -> None:
+    # What a kill in the middle of a write leaves: no footer, and a message without its end.
+    whole = message_ends(finished_recording)[-3]
+    (tmp_path / "dashboard.rrd").write_bytes(finished_recording[: whole + 40])
+    argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
+    argv += ["--credentials", dashboard_credentials]
+    argv += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--out", str(tmp_path)]
+    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+    dashboard = start("dashboard", argv, tmp_path / "logs")
+    children.append(dashboard)
+    dashboard.wait_for_line("open http://127.0.0.1:")
+    assert dashboard.stop(signal.SIGTERM, timeout_s=15) == 0
+    kept = tmp_path / "dashboard-1.rrd"
+    assert f"previous recording kept as {kept}" in dashboard.output()
+    assert "40 bytes cut off its end" in dashboard.output()
+    assert kept.read_bytes() == finished_recording[:whole]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # no footer: read as a legacy file
+        assert read_recording(kept)["/map/robots/robot1"].rows == FINISHED_RECORDING_CHUNKS - 1

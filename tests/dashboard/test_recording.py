@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 from rerun.error_utils import RerunWarning
 
+from services.dashboard.recording_file import STREAM_HEADER_BYTES, whole_messages
 from tests.dashboard.conftest import (
     Child,
     EntityData,
@@ -94,10 +95,17 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RecordedR
 
 
 def _recorded_until_s(path: Path) -> float:
-    """Latest simulated time of robot1's pose in a recording still being written."""
+    """Latest simulated time of robot1's pose in a recording still being written.
+
+    The writer may be in the middle of a message: only the whole ones are read, from a copy.
+    """
+    snapshot = path.with_name("poll-snapshot.rrd")
+    snapshot.write_bytes(whole_messages(path) if path.exists() else b"")
+    if snapshot.stat().st_size <= STREAM_HEADER_BYTES:
+        return 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RerunWarning)
-        robot = read_recording(path).get("/map/robots/robot1")
+        robot = read_recording(snapshot).get("/map/robots/robot1")
     return max(robot.sim_times_s, default=0.0) if robot else 0.0
 
 
