@@ -343,15 +343,19 @@ class DashboardService:
     def events_from_file(self) -> list[Update]:
         """The records of every run event in `<out>/events.jsonl` not read before (none
         without an out directory or a file); a line that is not an event is counted as
-        rejected, once."""
+        rejected, once.  A last line without its newline is still being written: it is read
+        next time."""
         if self.config.out_dir is None:
             return []
         try:
-            lines = (self.config.out_dir / EVENTS_FILE).read_bytes().splitlines()
+            lines = (self.config.out_dir / EVENTS_FILE).read_bytes().splitlines(keepends=True)
         except OSError:
             return []
         updates: list[Update] = []
-        for line in lines:
+        for ended_line in lines:
+            if not ended_line.endswith(b"\n"):
+                break
+            line = ended_line.rstrip(b"\r\n")
             if not line.strip() or line in self._event_lines_read:
                 continue
             self._event_lines_read.add(line)

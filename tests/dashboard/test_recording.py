@@ -29,8 +29,8 @@ from tests.dashboard.conftest import (
     start,
     start_dashboard,
     start_swarm,
-    wait_until,
 )
+from tests.support.waiting import wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -68,7 +68,9 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RecordedR
         started.append(swarm)
         swarm.wait_for_line("swarm lab:", timeout_s=60)
         partial = base / "b" / "dashboard.rrd"
-        wait_until(lambda: _recorded_until_s(partial) > 2.0, 90, "dashboard B to record 2 s")
+        wait_for(
+            lambda: _recorded_until_s(partial) > 2.0, 90, 0.2, describe="dashboard B to record 2 s"
+        )
         cut.child.stop(signal.SIGKILL)
         restarted = start_dashboard("dashboard-b2", base / "b", port, logs)
         started.append(restarted.child)
@@ -237,7 +239,7 @@ def test_replay_serves_a_recording_to_the_web_viewer(
             except OSError:
                 return False
 
-        wait_until(page_served, 30, "the replay's web viewer")
+        wait_for(page_served, 30, 0.2, describe="the replay's web viewer")
         assert "Listening for gRPC connections" in replay.output()
     finally:
         assert replay.stop() == 0

@@ -171,9 +171,14 @@ def test_events_already_in_the_run_directory_are_logged_once(
     assert dashboard.event_update(KILL_LEADER.model_dump_json().encode()) is None
     live = dashboard.event_update(LEADER_CHANGE.model_dump_json().encode())
     assert isinstance(live, Update) and live.t_s == LEADER_CHANGE.t_s
-    # Read again after the world appended one: only the new line counts.
+    # Read again while the world is half way through a line: nothing new, nothing rejected.
+    line = PWM_STUCK.model_dump_json() + "\n"
     with (tmp_path / EVENTS_FILE).open("a", encoding="utf-8") as events:
-        events.write(PWM_STUCK.model_dump_json() + "\n")
+        events.write(line[:20])
+    assert dashboard.events_from_file() == []
+    # Once the line is whole, it counts, once.
+    with (tmp_path / EVENTS_FILE).open("a", encoding="utf-8") as events:
+        events.write(line[20:])
     assert [u.t_s for u in dashboard.events_from_file()] == [PWM_STUCK.t_s]
     assert dashboard.counts["event"] == 3
     assert dict(dashboard.rejected) == {"not_json": 1, "does_not_fit": 1}

@@ -84,10 +84,15 @@ def _processes(live: LiveSwarm) -> dict[str, Any]:
 
 def _events(live: LiveSwarm) -> list[RunEvent]:
     try:
-        lines = (live.out / "events.jsonl").read_text(encoding="utf-8").splitlines()
+        lines = (live.out / "events.jsonl").read_bytes().splitlines(keepends=True)
     except OSError:
         return []
-    return [RunEvent.model_validate_json(line) for line in lines if line.strip()]
+    # A last line without its newline is still being written.
+    return [
+        RunEvent.model_validate_json(line)
+        for line in lines
+        if line.strip() and line.endswith(b"\n")
+    ]
 
 
 def _fault(live: LiveSwarm, *argv: str, exit_code: int = 0) -> dict[str, Any]:
