@@ -5,6 +5,12 @@ world`, a SIGKILL), every robot's PWM duty must be 0 within 200 ms of the world'
 message, read from the robots' own act messages; `swarm restart world` must resume from a
 checkpoint at most 1 s of simulated time before the kill, under a new epoch, and the formation
 must be back under 5 cm within 10 s of simulated time.  The figures are printed.
+
+When the world was killed is known from outside only as the last clock message heard from it.
+Where it resumed is its own `world_resumed` event, which must name the newest checkpoint the
+killed world left on disk: the first clock messages of the restarted world may go out before
+the router has its listener's route (under load, three ticks were missed), so the first one
+heard is not where it resumed.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import zenoh
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
 from robot_firmware.net.wire import ActMessage, ClockMessage, decode_act, decode_clock
+from swarm_config.faults import RunEvent
 from swarm_config.scenario import load_scenario
 from tests.integration.conftest import PAPER, LiveSwarm
 
@@ -100,6 +107,22 @@ def _formation_error_m(status: dict[str, Any]) -> float | None:
     return max(status["position_errors_m"][name] for name in FOLLOWERS)
 
 
+def _newest_checkpoint_tick(live_swarm: LiveSwarm) -> int:
+    """The tick of the newest checkpoint on disk (`world-<tick>.ckpt`, world/checkpoint.py)."""
+    names = (live_swarm.out / "checkpoints").glob("world-*.ckpt")
+    return max(int(path.stem.removeprefix("world-")) for path in names)
+
+
+def _world_resumed(live_swarm: LiveSwarm) -> RunEvent | None:
+    """The newest `world_resumed` event in events.jsonl (whole lines only)."""
+    try:
+        lines = (live_swarm.out / "events.jsonl").read_bytes().splitlines(keepends=True)
+    except OSError:
+        return None
+    events = [RunEvent.model_validate_json(line) for line in lines if line.endswith(b"\n")]
+    return next((e for e in reversed(events) if e.kind == "world_resumed"), None)
+
+
 def _is_off(act: ActMessage) -> bool:
     return all(d == 0.0 for d in act.duty) or not any(act.enabled)
 
@@ -152,6 +175,7 @@ def test_killed_world_stops_every_robot_and_a_restarted_one_resumes_its_checkpoi
             )
         )
 
+        newest_tick = _newest_checkpoint_tick(live_swarm)
         restart = live_swarm.admin("restart", "world")
         assert restart.get("restarted") == "world", restart
         resumed = live_swarm.wait_for(
@@ -159,7 +183,8 @@ def test_killed_world_stops_every_robot_and_a_restarted_one_resumes_its_checkpoi
             timeout_s=60.0,
             describe="a clock message of the restarted world",
         )
-        resumed_at_sim_s = resumed.t_ns / 1e9
+        resume = live_swarm.wait_for(lambda: _world_resumed(live_swarm), timeout_s=30.0)
+        resumed_at_sim_s = resume.t_s
         formation_back: dict[str, float] = {}
 
         def formation_back_under_bound() -> bool:
@@ -189,8 +214,9 @@ def test_killed_world_stops_every_robot_and_a_restarted_one_resumes_its_checkpoi
 
     world_log = (live_swarm.out / "logs" / "world.log").read_text()
     assert "resuming from checkpoint" in world_log, world_log[-2000:]
+    assert resume.detail["tick"] == newest_tick
     assert resumed_at_sim_s > 0.0
-    assert 0.0 <= killed_at_sim_s - resumed_at_sim_s <= RESUME_AT_MOST_S_BEFORE_KILL
+    assert killed_at_sim_s - resumed_at_sim_s <= RESUME_AT_MOST_S_BEFORE_KILL
     assert back_after_s <= FORMATION_BACK_WITHIN_S
     assert status["metrics"]["collisions"] == 0, status["metrics"]
     for name, delay_s in off_after_s.items():
@@ -216,14 +242,16 @@ def test_lockstep_world_restarted_resumes_its_checkpoint_and_the_robots_answer_i
         assert live_swarm.admin("kill", "world")["killed"]
         time.sleep(0.5)
         killed_at_sim_s = heard.snapshot()[0][-1][1].t_ns / 1e9
+        newest_tick = _newest_checkpoint_tick(live_swarm)
         restart = live_swarm.admin("restart", "world")
         assert restart.get("restarted") == "world", restart
-        resumed = live_swarm.wait_for(
+        live_swarm.wait_for(
             lambda: next((c for _, c in heard.snapshot()[0] if c.epoch != old_epoch), None),
             timeout_s=60.0,
             describe="a clock message of the restarted world",
         )
-        resumed_at_sim_s = resumed.t_ns / 1e9
+        resume = live_swarm.wait_for(lambda: _world_resumed(live_swarm), timeout_s=30.0)
+        resumed_at_sim_s = resume.t_s
         formation_back: dict[str, float] = {}
 
         def formation_back_under_bound() -> bool:
@@ -250,8 +278,8 @@ def test_lockstep_world_restarted_resumes_its_checkpoint_and_the_robots_answer_i
             f"{status['metrics']['collisions']}; live {status['live']}"
         )
     assert sorted(status["live"]) == sorted(ROBOTS)
+    assert resume.detail["tick"] == newest_tick
     assert resumed_at_sim_s > 0.0
-    assert killed_at_sim_s - resumed_at_sim_s >= 0.0
     assert killed_at_sim_s - resumed_at_sim_s <= RESUME_AT_MOST_S_BEFORE_KILL
     assert back_after_s <= FORMATION_BACK_WITHIN_S
     assert status["metrics"]["collisions"] == 0, status["metrics"]
