@@ -14,8 +14,9 @@ Clock modes:
   messages carry the tick of the newest sense message it had): a starved host slows the run
   down (real-time factor < 1) instead of letting robots drive blind, and a frozen robot holds
   it for at most `starvation_hold_limit_s`.  The physics is integrated exactly from event to
-  event (duty change at an act's arrival, frame due, sense due; an act is applied at the loop's
-  next pass and wakes it only while the time is held), sense messages go out every control period
+  event (duty change at the first `act_grid_ms` step after an act's arrival, frame due, sense
+  due; an act is applied at the loop's next pass and wakes it only while the time is held),
+  sense messages go out every control period
   (repeated, with no new fix, while the time is held); a body whose last act message is older than
   `act_timeout_ms` of simulated time, or that the guard stopped waiting for, is braked;
 * lockstep: per control period the world sends every robot its sense message with the tick
@@ -175,6 +176,15 @@ ANSWER_WAIT_STEP_NS = 100_000_000
 a pass waits at most 0.05 s unless the process was frozen)."""
 
 
+def act_effect_ns(arrival_ns: int, now_ns: int, grid_ns: int) -> int:
+    """Real time: the simulated instant an act that came at `arrival_ns` changes its duty:
+    the first multiple of `grid_ns` at or after it (`arrival_ns` itself for a grid of 0), and
+    never after `now_ns`, the clock of the loop that applies it."""
+    if grid_ns <= 0:
+        return arrival_ns
+    return min(-(-arrival_ns // grid_ns) * grid_ns, max(arrival_ns, now_ns))
+
+
 class WorldConfig(LayeredSettings):
     """Settings of the world process: YAML file (`swarm world --config`), then environment,
     then flags."""
@@ -219,6 +229,11 @@ class WorldConfig(LayeredSettings):
     starvation_hold_limit_s: float = Field(default=0.5, gt=0.0, le=1.0)
     """Real time: the longest the world waits for one robot before it goes on without it
     (braking its body): at most the robots' liveliness lease (1 s)."""
+    act_grid_ms: float = Field(default=1.0, ge=0.0, le=5.0)
+    """Real time: an act's duty takes effect at the first multiple of this much simulated time
+    at or after the act came, as in a physics loop of that step, so the acts that come within
+    one step share a physics step; 0: at the very instant it came, one physics step per act.
+    Lockstep applies every act at its tick anyway."""
     credentials: OptionalCredentialsFile = Field(default=None, repr=False)
     """The world's router user and password (swarm_config/credentials.py), from the file
     named by --credentials or $SWARM_CREDENTIALS_FILE; `swarm world` refuses to start
@@ -983,14 +998,16 @@ class WorldProcess:
         beyond the period the slowest live robot has answered.  While it is held, the newest
         sense messages are repeated every period.  The physics is integrated exactly from event
         to event (an act changes a duty, a frame falls due, a sense message is due):
-        `step_bodies` is exact for a held duty, so this equals a 1 kHz loop without its cost.
+        `step_bodies` is exact for a held duty, so with the default `act_grid_ms` of 1 this
+        equals a 1 kHz loop without its cost: the acts that came within one millisecond change
+        their duties together, at its end, in one physics step instead of one each.
 
         An act does not wake the loop unless the guard holds the time: it carries its arrival
         instant, and the loop, which drains the acts before it moves the physics on, catches
-        the physics up to that instant before it applies the act, so the duty changes when the
-        act came all the same.  The answers reach the guard at the latest at the next sense
-        tick, within its lead of two periods; one wake-up per act (N per period) would cost
-        the loop an iteration and a physics step each."""
+        the physics up to that instant (on the act grid) before it applies the act, so the duty
+        changes when the act came all the same.  The answers reach the guard at the latest at
+        the next sense tick, within its lead of two periods; one wake-up per act (N per period)
+        would cost the loop an iteration and a physics step each."""
         end = self._end_tick()
         guard = self.guard
         # A resumed world carries on from the checkpoint's time.
@@ -1000,15 +1017,7 @@ class WorldProcess:
         self._clock_started_sim_ns = self.engine.t_ns
         next_summary = time.monotonic() + self.config.summary_every_s
 
-        def advance_to(sim_ns: int) -> None:
-            while self.engine.t_ns < sim_ns:
-                step = min(MAX_PHYSICS_STEP_NS, sim_ns - self.engine.t_ns)
-                self.engine.advance(self._braked_duty(), step)
-
-        def catch_up(arrival_mono_ns: int) -> None:
-            advance_to(guard.sim_time_ns(min(arrival_mono_ns, time.monotonic_ns())))
-
-        self._catch_up = catch_up
+        self._catch_up = self._catch_up_with_act
         try:
             while not self.stop.is_set() and (end is None or self.tick < end):
                 due = self.next_sense_ns
@@ -1036,7 +1045,7 @@ class WorldProcess:
                 mono = time.monotonic_ns()
                 now_sim = guard.sim_time_ns(mono)
                 if now_sim >= self.next_sense_ns:
-                    advance_to(self.next_sense_ns)
+                    self._advance_physics_to(self.next_sense_ns)
                     self._tick_boundary()
                     self._publish_sense(lockstep=False, delivered=self._deliver_radio())
                     # Late at the check, plus the wall time to the messages' departure.
@@ -1056,7 +1065,7 @@ class WorldProcess:
                     self._publish_truth(truth_pub)
                     self._checkpoint_if_due()
                 else:
-                    advance_to(now_sim)
+                    self._advance_physics_to(now_sim)
                     self._deliver_radio()
                     if guard.holding and mono >= self._sense_sent_mono_ns + self.period_ns:
                         self._repeat_sense()
@@ -1075,6 +1084,24 @@ class WorldProcess:
                     self.write_summary()
         finally:
             self._catch_up = None
+
+    def _advance_physics_to(self, sim_ns: int) -> None:
+        """Real time: the physics up to `sim_ns` with the duties held, in exact steps."""
+        while self.engine.t_ns < sim_ns:
+            step = min(MAX_PHYSICS_STEP_NS, sim_ns - self.engine.t_ns)
+            self.engine.advance(self._braked_duty(), step)
+
+    def _catch_up_with_act(self, arrival_mono_ns: int) -> None:
+        """Real time: the physics up to when an act that came at `arrival_mono_ns` changes its
+        duty (`act_effect_ns` on the `act_grid_ms` grid), before `_drain` applies it."""
+        now_mono = time.monotonic_ns()
+        self._advance_physics_to(
+            act_effect_ns(
+                self.guard.sim_time_ns(min(arrival_mono_ns, now_mono)),
+                self.guard.sim_time_ns(now_mono),
+                round(self.config.act_grid_ms * 1e6),
+            )
+        )
 
     def _publish_truth(self, truth_pub: zenoh.Publisher) -> None:
         self._record_collisions()

@@ -1,5 +1,6 @@
 """When an act message wakes the world's main loop (world/runtime.py `_on_act`), and that a
-late-drained act still changes the duty at its arrival instant (`_drain`), without a network.
+late-drained act still changes the duty at its arrival instant, on the act grid (`_drain`,
+`act_effect_ns`), without a network.
 
 In real time the loop is not woken per act: it drains the acts at its next wake-up and catches
 the physics up to each act's arrival before it applies it, so nothing but the loop's work
@@ -11,6 +12,7 @@ processes.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,7 @@ import numpy as np
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.wire import ActMessage, encode_act
 from swarm_config.scenario import load_scenario
-from world.runtime import WorldConfig, WorldProcess
+from world.runtime import WorldConfig, WorldProcess, act_effect_ns
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -38,8 +40,9 @@ class ActSample:
         return self._bytes
 
 
-def world_of(lockstep: bool) -> WorldProcess:
-    return WorldProcess(WorldConfig(scenario=PAPER, lockstep=lockstep), load_scenario(PAPER))
+def world_of(lockstep: bool, **settings: object) -> WorldProcess:
+    config = WorldConfig(scenario=PAPER, lockstep=lockstep, **settings)  # type: ignore[arg-type]
+    return WorldProcess(config, load_scenario(PAPER))
 
 
 def test_a_real_time_act_wakes_the_loop_only_while_the_guard_holds_the_time() -> None:
@@ -75,3 +78,60 @@ def test_a_late_drained_act_is_applied_after_the_physics_caught_up_to_its_arriva
     stamps = [stamp for stamp, _ in seen]
     assert stamps == sorted(stamps)
     np.testing.assert_array_equal(world.duty[:, 0], [0.5, 0.0, 0.75])
+
+
+MS = 1_000_000
+
+
+def test_an_act_takes_effect_at_the_next_grid_step_but_never_after_the_clock() -> None:
+    assert act_effect_ns(0, 5 * MS, MS) == 0
+    assert act_effect_ns(200_000, 5 * MS, MS) == MS
+    assert act_effect_ns(MS, 5 * MS, MS) == MS
+    assert act_effect_ns(MS + 1, 5 * MS, MS) == 2 * MS
+    assert act_effect_ns(1_200_000, 1_500_000, MS) == 1_500_000  # drained before its step came
+    assert act_effect_ns(1_200_000, 1_100_000, MS) == 1_200_000  # never before it came
+    assert act_effect_ns(1_234_567, 5 * MS, 0) == 1_234_567  # no grid: the very instant
+
+
+class CountingEngine:
+    """Counts the world engine's physics steps and where they end."""
+
+    def __init__(self, world: WorldProcess) -> None:
+        self.ends_ns: list[int] = []
+        engine = world.engine
+        step = engine.advance
+
+        def advance(duty: object, dt_ns: int) -> None:
+            step(duty, dt_ns)  # type: ignore[arg-type]
+            self.ends_ns.append(engine.t_ns)
+
+        engine.advance = advance  # type: ignore[method-assign]
+
+
+def _drain_acts_that_came_at(world: WorldProcess, offsets_ns: list[int]) -> list[int]:
+    """Acts that came at `offsets_ns` after simulated time 0, drained 5 ms in: the ends of the
+    physics steps taken."""
+    now = time.monotonic_ns()
+    start = now - 5 * MS
+    world.guard.start(0, 0, 0, start)
+    world._catch_up = world._catch_up_with_act
+    counting = CountingEngine(world)
+    for i, offset in enumerate(offsets_ns):
+        robot = ("robot1", "robot2", "robot3")[i % 3]
+        # What `_on_act` queues: the sender, the message and its arrival instant.
+        world._acts.put((robot, ActSample(robot, 0.1 * (i + 1)).to_bytes(), start + offset))
+    world._drain()
+    return counting.ends_ns
+
+
+def test_acts_that_come_within_one_grid_step_share_one_physics_step() -> None:
+    world = world_of(lockstep=False)  # act_grid_ms 1 by default
+    ends = _drain_acts_that_came_at(world, [200_000, 500_000, 900_000, 2_300_000])
+    assert ends == [MS, 3 * MS]
+    np.testing.assert_allclose(world.duty[:, 0], [0.4, 0.2, 0.3])
+
+
+def test_without_a_grid_each_act_has_its_own_physics_step() -> None:
+    world = world_of(lockstep=False, act_grid_ms=0.0)
+    ends = _drain_acts_that_came_at(world, [200_000, 500_000, 900_000, 2_300_000])
+    assert ends == [200_000, 500_000, 900_000, 2_300_000]
