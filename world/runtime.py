@@ -176,13 +176,14 @@ ANSWER_WAIT_STEP_NS = 100_000_000
 a pass waits at most 0.05 s unless the process was frozen)."""
 
 
-def act_effect_ns(arrival_ns: int, now_ns: int, grid_ns: int) -> int:
+def act_effect_ns(arrival_ns: int, limit_ns: int, grid_ns: int) -> int:
     """Real time: the simulated instant an act that came at `arrival_ns` changes its duty:
-    the first multiple of `grid_ns` at or after it (`arrival_ns` itself for a grid of 0), and
-    never after `now_ns`, the clock of the loop that applies it."""
+    the first multiple of `grid_ns` at or after it (`arrival_ns` itself for a grid of 0), but
+    not after `limit_ns` (the loop's clock, or the next sense tick if that is sooner) unless
+    the act itself came after it."""
     if grid_ns <= 0:
         return arrival_ns
-    return min(-(-arrival_ns // grid_ns) * grid_ns, max(arrival_ns, now_ns))
+    return min(-(-arrival_ns // grid_ns) * grid_ns, max(arrival_ns, limit_ns))
 
 
 class WorldConfig(LayeredSettings):
@@ -1095,12 +1096,12 @@ class WorldProcess:
         """Real time: the physics up to when an act that came at `arrival_mono_ns` changes its
         duty (`act_effect_ns` on the `act_grid_ms` grid), before `_drain` applies it."""
         now_mono = time.monotonic_ns()
+        arrival_ns = self.guard.sim_time_ns(min(arrival_mono_ns, now_mono))
+        # A grid step that does not divide the period must not carry the physics past the
+        # next sense tick, nor past the clock.
+        limit_ns = min(self.guard.sim_time_ns(now_mono), self.next_sense_ns)
         self._advance_physics_to(
-            act_effect_ns(
-                self.guard.sim_time_ns(min(arrival_mono_ns, now_mono)),
-                self.guard.sim_time_ns(now_mono),
-                round(self.config.act_grid_ms * 1e6),
-            )
+            act_effect_ns(arrival_ns, limit_ns, round(self.config.act_grid_ms * 1e6))
         )
 
     def _publish_truth(self, truth_pub: zenoh.Publisher) -> None:

@@ -88,7 +88,8 @@ def test_an_act_takes_effect_at_the_next_grid_step_but_never_after_the_clock() -
     assert act_effect_ns(200_000, 5 * MS, MS) == MS
     assert act_effect_ns(MS, 5 * MS, MS) == MS
     assert act_effect_ns(MS + 1, 5 * MS, MS) == 2 * MS
-    assert act_effect_ns(1_200_000, 1_500_000, MS) == 1_500_000  # drained before its step came
+    # Drained before its grid step came (or the next sense tick is sooner): the limit.
+    assert act_effect_ns(1_200_000, 1_500_000, MS) == 1_500_000
     assert act_effect_ns(1_200_000, 1_100_000, MS) == 1_200_000  # never before it came
     assert act_effect_ns(1_234_567, 5 * MS, 0) == 1_234_567  # no grid: the very instant
 
@@ -108,12 +109,15 @@ class CountingEngine:
         engine.advance = advance  # type: ignore[method-assign]
 
 
-def _drain_acts_that_came_at(world: WorldProcess, offsets_ns: list[int]) -> list[int]:
-    """Acts that came at `offsets_ns` after simulated time 0, drained 5 ms in: the ends of the
-    physics steps taken."""
+def _drain_acts_that_came_at(
+    world: WorldProcess, offsets_ns: list[int], drained_at_ns: int = 5 * MS
+) -> list[int]:
+    """Acts that came at `offsets_ns` after simulated time 0, drained at `drained_at_ns`
+    with the next sense tick due at 10 ms: the ends of the physics steps taken."""
     now = time.monotonic_ns()
-    start = now - 5 * MS
+    start = now - drained_at_ns
     world.guard.start(0, 0, 0, start)
+    world.next_sense_ns = 10 * MS  # tick 0 went out; the paper's period is 10 ms
     world._catch_up = world._catch_up_with_act
     counting = CountingEngine(world)
     for i, offset in enumerate(offsets_ns):
@@ -129,6 +133,13 @@ def test_acts_that_come_within_one_grid_step_share_one_physics_step() -> None:
     ends = _drain_acts_that_came_at(world, [200_000, 500_000, 900_000, 2_300_000])
     assert ends == [MS, 3 * MS]
     np.testing.assert_allclose(world.duty[:, 0], [0.4, 0.2, 0.3])
+
+
+def test_a_grid_step_that_does_not_divide_the_period_stops_at_the_sense_tick() -> None:
+    world = world_of(lockstep=False, act_grid_ms=3.0)
+    # Drained late, at 11 ms: the second act's grid step (12 ms) is past the sense tick.
+    ends = _drain_acts_that_came_at(world, [8_500_000, 9_500_000], drained_at_ns=11 * MS)
+    assert ends == [9 * MS, 10 * MS]
 
 
 def test_without_a_grid_each_act_has_its_own_physics_step() -> None:
