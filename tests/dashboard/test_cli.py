@@ -103,16 +103,22 @@ def test_replay_of_a_missing_file_is_a_usage_error(
     assert "no such recording" in capsys.readouterr().err
 
 
+def _start_without_router(out: Path, children: list[Child], credentials: str) -> Child:
+    """`swarm dashboard --out OUT` with no router to reach, up to its printed URL."""
+    argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
+    argv += ["--credentials", credentials]
+    argv += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--out", str(out)]
+    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+    dashboard = start("dashboard", argv, out / "logs")
+    children.append(dashboard)
+    dashboard.wait_for_line("open http://127.0.0.1:")
+    return dashboard
+
+
 def test_dashboard_waiting_for_an_absent_router_stops_on_sigterm(
     tmp_path: Path, children: list[Child], dashboard_credentials: str
 ) -> None:
-    argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
-    argv += ["--credentials", dashboard_credentials]
-    argv += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--out", str(tmp_path)]
-    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
-    dashboard = start("dashboard", argv, tmp_path / "logs")
-    children.append(dashboard)
-    dashboard.wait_for_line("open http://127.0.0.1:")
+    dashboard = _start_without_router(tmp_path, children, dashboard_credentials)
     assert dashboard.stop(signal.SIGTERM, timeout_s=15) == 0
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a clean stop writes the footer: no legacy warning
@@ -126,13 +132,7 @@ def test_a_restarted_dashboard_cuts_a_half_written_chunk_off_the_kept_file(
     # What a kill in the middle of a write leaves: no footer, and a message without its end.
     whole = message_ends(finished_recording)[-3]
     (tmp_path / "dashboard.rrd").write_bytes(finished_recording[: whole + 40])
-    argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
-    argv += ["--credentials", dashboard_credentials]
-    argv += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--out", str(tmp_path)]
-    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
-    dashboard = start("dashboard", argv, tmp_path / "logs")
-    children.append(dashboard)
-    dashboard.wait_for_line("open http://127.0.0.1:")
+    dashboard = _start_without_router(tmp_path, children, dashboard_credentials)
     assert dashboard.stop(signal.SIGTERM, timeout_s=15) == 0
     kept = tmp_path / "dashboard-1.rrd"
     assert f"previous recording kept as {kept}" in dashboard.output()
