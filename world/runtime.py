@@ -327,6 +327,8 @@ class WorldProcess:
         """Real time: holds simulated time back for starved robots (world/realtime_guard.py)."""
         self.sense_lateness = SenseLateness(self.period_ns)
         """Real time: how late the loop's own work made each sense tick."""
+        self._act_grid_ns = round(config.act_grid_ms * 1e6)
+        """Real time: the step of simulated time on which acts change duties (`act_effect_ns`)."""
         self._sense_sent: tuple[SensePins, int] | None = None
         self._sense_sent_mono_ns = 0
         self._sense_out_mono_ns = 0
@@ -1100,9 +1102,7 @@ class WorldProcess:
         # A grid step that does not divide the period must not carry the physics past the
         # next sense tick, nor past the clock.
         limit_ns = min(self.guard.sim_time_ns(now_mono), self.next_sense_ns)
-        self._advance_physics_to(
-            act_effect_ns(arrival_ns, limit_ns, round(self.config.act_grid_ms * 1e6))
-        )
+        self._advance_physics_to(act_effect_ns(arrival_ns, limit_ns, self._act_grid_ns))
 
     def _publish_truth(self, truth_pub: zenoh.Publisher) -> None:
         self._record_collisions()
