@@ -12,6 +12,7 @@ costs two reads of the thread's CPU clock more (the script prints what one costs
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import sys
@@ -89,6 +90,17 @@ def _install(phases: dict[str, tuple[str, ...]], counter: tuple[str, str], role:
         path = out / f"{role}-{os.getpid()}.json"
         path.with_suffix(".tmp").write_text(json.dumps(record))
         path.with_suffix(".tmp").replace(path)
+
+    def on_collection(phase: str, info: dict[str, int]) -> None:
+        """The cyclic collector's own CPU, per generation, on whichever thread triggered it."""
+        if phase == "start":
+            state["gc_started_ns"] = clock()
+            return
+        cell = totals.setdefault(f"gc.collect (generation {info['generation']})", [0, 0])
+        cell[0] += clock() - state.get("gc_started_ns", clock())
+        cell[1] += 1
+
+    gc.callbacks.append(on_collection)
 
     module_name, qualified = counter
     class_name, method = qualified.split(".")
