@@ -6,11 +6,13 @@ would), runs `swarm up --no-dashboard` in real time with the phase probe of
 bench/phase_probe/sitecustomize.py loaded into the robot and world processes, and after
 `--duration` seconds reads what the probe wrote: for each phase of the robot's control loop
 (sense messages to the pins, the fabric model's time, the 5C control tick, radio frames, act
-and telemetry messages, the scheduler) the CPU per control period and per call, median over the
-robots, and the same for the world per sense tick.  Figures are thread CPU time, so they count
-what the phase costs this process on a shared machine (cold caches after another process ran
-included), not the wall time it waited.  Compare them with `bench/firmware_tick.py`, which
-times the same control tick in a tight loop, warm.
+and telemetry messages, the scheduler, the garbage collector's runs) the CPU per control period
+and per call, median over the robots, and the same for the world per sense tick.  Figures are
+thread CPU time, so they count what the phase costs this process on a shared machine (cold
+caches after another process ran included), not the wall time it waited.  Compare them with
+`bench/firmware_tick.py`, which times the same control tick in a tight loop, warm, and with
+`bench/robot_period.py`, which times a robot's whole period without the network, warm and with
+the caches evicted.
 
     .venv/bin/python bench/robot_phases.py [--robots 6] [--duration 30] [--keep DIR]
 """

@@ -7,7 +7,8 @@ adds the calling thread's CPU time (`time.thread_time_ns`) to its phase, and wri
 to $SWARM_PHASE_PROBE_DIR/<role>-<pid>.json every 250 periods.  The first `WARM_UP_PERIODS`
 periods (start-up, first contact) are dropped.  Phases nest as the code does: `_control`
 holds `control_tick`, `receive`, `_publish_act` and `_publish_telemetry`.  A wrapped call
-costs two reads of the thread's CPU clock more (the script prints what one costs).
+costs two reads of the thread's CPU clock more (the script prints what one costs).  The cyclic
+garbage collector's runs are timed too (`gc.callbacks`), per generation, as phases of their own.
 """
 
 from __future__ import annotations
