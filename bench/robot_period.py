@@ -34,15 +34,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from machine import machine_lines
 
-from robot_firmware.net.wire import WireDropReason, encode_sense_rows, parse_act
-from robot_firmware.runtime import RobotConfig, RobotProcess
-from robot_firmware.tick_scheduler import RunTick
-from swarm_config.credentials import generate_credential_set, write_credential_set
-from swarm_config.generate import GenerateRequest, generate_scenario_text
-from swarm_config.scenario import load_scenario
-from world.engine import WorldEngine
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from machine import machine_lines  # noqa: E402
+
+from robot_firmware.net.wire import WireDropReason, encode_sense_rows, parse_act  # noqa: E402
+from robot_firmware.runtime import RobotConfig, RobotProcess  # noqa: E402
+from robot_firmware.tick_scheduler import RunTick  # noqa: E402
+from swarm_config.credentials import generate_credential_set, write_credential_set  # noqa: E402
+from swarm_config.generate import GenerateRequest, generate_scenario_text  # noqa: E402
+from swarm_config.scenario import load_scenario  # noqa: E402
+from tests.fuzz.processes import KeptPublisher  # noqa: E402
+from world.engine import WorldEngine  # noqa: E402
 
 WARM_UP_PERIODS = 300
 EVICT_BYTES = 64 << 20
@@ -61,16 +67,6 @@ LABELS = {
     "rest": "the rest (scheduler, loop)",
     "all": "all of it",
 }
-
-
-class KeptPublisher:
-    """Stands in for a Zenoh publisher: keeps what is put."""
-
-    def __init__(self) -> None:
-        self.payloads: list[bytes] = []
-
-    def put(self, payload: bytes) -> None:
-        self.payloads.append(bytes(payload))
 
 
 class PhaseClock:
