@@ -30,6 +30,8 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -111,10 +113,66 @@ def build(robots: int, work: Path) -> tuple[WorldEngine, list[RobotProcess]]:
     return world, processes
 
 
+@dataclass
+class PeriodOut:
+    """What each robot did in one closed-loop period: its main-loop wall time and what it put."""
+
+    elapsed_ns: list[int]
+    sense: list[bytes]
+    act: list[bytes]
+    frames: list[list[bytes]]
+    telemetry: list[list[bytes]]
+
+
+def closed_loop_period(
+    world: WorldEngine,
+    processes: list[RobotProcess],
+    period: int,
+    before_robot: Callable[[], None] | None = None,
+) -> PeriodOut:
+    """One control period of every robot against the world: the due frames and the encoded
+    sense messages queued as the subscribers would queue them, each robot's main-loop work for
+    a tick (timed; `before_robot` runs first, untimed), its act applied and its frames put on
+    the radio medium, then the world's physics step."""
+    robots = len(processes)
+    out = PeriodOut([0] * robots, [], [], [[] for _ in processes], [[] for _ in processes])
+    delivered = [0] * robots
+    for receiver, _sender, payload in world.due_frames():
+        processes[receiver]._frames.append(payload)
+        delivered[receiver] += 1
+    out.sense = encode_sense_rows(world.sense_pins(), period, True, delivered, 0)
+    duty = np.zeros((robots, 4))
+    act_pub, tx_pub, telemetry_pub = KeptPublisher(), KeptPublisher(), KeptPublisher()
+    for index, (process, payload) in enumerate(zip(processes, out.sense, strict=True)):
+        if before_robot is not None:
+            before_robot()
+        started = time.perf_counter_ns()
+        process._sense.append((payload, time.monotonic_ns()))
+        process._take_sense()
+        decision = process.scheduler.poll(time.monotonic_ns(), len(process._frames))
+        if not isinstance(decision, RunTick):
+            raise SystemExit(f"{process.config.name} did not tick at period {period}")
+        process._run_period(decision, act_pub, tx_pub, telemetry_pub)
+        process.scheduler.finished(decision, time.monotonic_ns())
+        out.elapsed_ns[index] = time.perf_counter_ns() - started
+        out.act.append(act_pub.payloads.pop())
+        act = parse_act(out.act[-1])
+        if isinstance(act, WireDropReason):
+            raise SystemExit(f"{process.config.name} sent an act the world drops: {act}")
+        duty[index] = np.where(act.enabled, act.duty, 0.0)
+        for frame in tx_pub.payloads:
+            world.transmit(index, frame)
+        out.frames[index] = tx_pub.payloads[:]
+        out.telemetry[index] = telemetry_pub.payloads[:]
+        tx_pub.payloads.clear()
+        telemetry_pub.payloads.clear()
+    world.advance(duty, processes[0].period_ns)
+    return out
+
+
 def run(robots: int, periods: int, cold: bool, work: Path) -> dict[str, float]:
     """Median over robots of the mean µs per period of each phase."""
     world, processes = build(robots, work)
-    period_ns = processes[0].period_ns
     clocks = []
     for process in processes:
         clock = PhaseClock()
@@ -126,41 +184,20 @@ def run(robots: int, periods: int, cold: bool, work: Path) -> dict[str, float]:
         clock.wrap(process, "_publish_act", "act")
         clock.wrap(process, "_publish_telemetry", "telemetry")
         clocks.append(clock)
-    act_pub, tx_pub, telemetry_pub = KeptPublisher(), KeptPublisher(), KeptPublisher()
     evict = np.zeros(EVICT_BYTES // 8)
+
+    def sweep() -> None:
+        nonlocal evict
+        evict += 1.0
+
     totals_ns = [0] * robots
     for period in range(WARM_UP_PERIODS + periods):
         if period == WARM_UP_PERIODS:
             for clock in clocks:
                 clock.spent_ns.update(dict.fromkeys(clock.spent_ns, 0))
             totals_ns = [0] * robots
-        delivered = [0] * robots
-        for receiver, _sender, payload in world.due_frames():
-            processes[receiver]._frames.append(payload)
-            delivered[receiver] += 1
-        payloads = encode_sense_rows(world.sense_pins(), period, True, delivered, 0)
-        duty = np.zeros((robots, 4))
-        for index, (process, payload) in enumerate(zip(processes, payloads, strict=True)):
-            if cold:
-                evict += 1.0
-            started = time.perf_counter_ns()
-            process._sense.append((payload, time.monotonic_ns()))
-            process._take_sense()
-            decision = process.scheduler.poll(time.monotonic_ns(), len(process._frames))
-            if not isinstance(decision, RunTick):
-                raise SystemExit(f"{process.config.name} did not tick at period {period}")
-            process._run_period(decision, act_pub, tx_pub, telemetry_pub)
-            process.scheduler.finished(decision, time.monotonic_ns())
-            totals_ns[index] += time.perf_counter_ns() - started
-            act = parse_act(act_pub.payloads.pop())
-            if isinstance(act, WireDropReason):
-                raise SystemExit(f"{process.config.name} sent an act the world drops: {act}")
-            duty[index] = np.where(act.enabled, act.duty, 0.0)
-            for frame in tx_pub.payloads:
-                world.transmit(index, frame)
-            tx_pub.payloads.clear()
-        telemetry_pub.payloads.clear()
-        world.advance(duty, period_ns)
+        out = closed_loop_period(world, processes, period, sweep if cold else None)
+        totals_ns = [t + e for t, e in zip(totals_ns, out.elapsed_ns, strict=True)]
     result = {}
     for phase in (*PHASES[:-1], *NESTED):
         result[phase] = statistics.median(c.spent_ns[phase] for c in clocks) / periods / 1e3
