@@ -86,7 +86,7 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
     telemetry = bytes.fromhex(payloads["telemetry"][name])
     sense: deque[tuple[bytes, int]] = deque(maxlen=64)
     frames: deque[bytes] = deque(maxlen=1024)
-    tokens: deque[tuple[str, bool]] = deque(maxlen=1024)
+    tokens: deque[str] = deque(maxlen=1024)
     wake, stop = threading.Event(), threading.Event()
     threading.Thread(target=_stop_at_eof, args=(stop, wake), daemon=True).start()
 
@@ -98,9 +98,9 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
         frames.append(sample.payload.to_bytes())
 
     def on_token(sample: Any) -> None:
-        tokens.append((str(sample.key_expr), True))
+        tokens.append(str(sample.key_expr))
 
-    received = answered = frames_taken = 0
+    answered = frames_taken = 0
     with open_client([endpoint], None, read_credentials(credentials)) as session:
         session.declare_subscriber(keys.sense(name), on_sense)
         session.declare_subscriber(keys.radio_rx(name), on_frame)
@@ -116,17 +116,16 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
             wake.clear()
             while sense:
                 sense.popleft()
-                received += 1
+                answered += 1
                 # As a real period: the frames taken, then frame, act and telemetry put.
                 frames_taken += drain(frames)
-                if received % FIFTH == 0:
+                if answered % FIFTH == 0:
                     tx_pub.put(frame)
                 act_pub.put(act)
-                answered += 1
-                if received % FIFTH == 0:
+                if answered % FIFTH == 0:
                     telemetry_pub.put(telemetry)
         token.undeclare()
-    print(json.dumps({"sense": received, "answered": answered, "frames": frames_taken}))
+    print(json.dumps({"answered": answered, "frames": frames_taken}))
 
 
 def stand_in_world(endpoint: str, credentials: Path, payloads: dict[str, Any]) -> None:
