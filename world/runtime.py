@@ -545,7 +545,11 @@ class WorldProcess:
             self._on_liveliness(name, alive)
         if self._token_lost_mono_s:
             self._tokens_lost_for_good()
-        while True:
+        # Only the acts queued when this pass began: in real time each act catches the physics
+        # up to its arrival, and on a starved machine acts can come faster than that, which
+        # would hold the loop here with no sense tick going out.  Later acts wait for the next
+        # pass, as acts that come while the loop sleeps do.
+        for _ in range(self._acts.qsize()):
             try:
                 robot, raw, arrival = self._acts.get_nowait()
             except queue.Empty:

@@ -80,6 +80,30 @@ def test_a_late_drained_act_is_applied_after_the_physics_caught_up_to_its_arriva
     np.testing.assert_array_equal(world.duty[:, 0], [0.5, 0.0, 0.75])
 
 
+def test_a_drain_takes_only_the_acts_queued_when_it_began() -> None:
+    """Acts that keep coming while a pass catches the physics up wait for the next pass, so a
+    starved world whose acts come faster than it catches up still gets to its sense ticks."""
+    world = world_of(lockstep=False)
+    caught_up = 0
+
+    def catch_up(arrival_mono_ns: int) -> None:
+        nonlocal caught_up
+        caught_up += 1
+        if caught_up <= 1000:  # every catch-up outlasts the next act's arrival
+            world._on_act(ActSample("robot2", 0.25))  # type: ignore[arg-type]
+
+    world._catch_up = catch_up
+    for robot in ("robot1", "robot2", "robot3"):
+        world._on_act(ActSample(robot, 0.5))  # type: ignore[arg-type]
+    world._drain()
+    assert caught_up == 3
+    assert world._acts.qsize() == 3
+    np.testing.assert_array_equal(world.duty[:, 0], [0.5, 0.5, 0.5])
+    world._drain()  # the next pass takes those that came during the first
+    assert caught_up == 6
+    np.testing.assert_array_equal(world.duty[:, 0], [0.5, 0.25, 0.5])
+
+
 MS = 1_000_000
 
 
