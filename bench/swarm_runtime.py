@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import statistics
 import subprocess
 import sys
@@ -41,17 +40,13 @@ from pathlib import Path
 import numpy as np
 from machine import machine_lines
 from proc_stats import CpuWindow
-from swarm_up import SwarmUp, free_port
+from swarm_up import SwarmUp, start_router
 
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import LockstepProfileReport
 from robot_firmware.net.session import open_client
-from services.router.access import router_config_document
 from swarm_config.credentials import (
-    generate_credential_set,
     read_credentials,
-    write_credential_set,
-    write_private_file,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -169,15 +164,10 @@ def router_and_echo() -> Iterator[tuple[str, dict[str, Path]]]:
     """A router with the run's logins but no access control (the bench plays robots and uses
     keys of its own), and `ECHO_PROCESS` logged in as robot3: the endpoint and the
     credential files."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     credentials_dir = Path(tempfile.mkdtemp()) / "credentials"
-    credentials = generate_credential_set("lab", ("robot1", "robot2", "robot3"))
-    files = write_credential_set(credentials_dir, credentials)
-    document = router_config_document(credentials, credentials_dir / "router-users.txt", [endpoint])
-    document["access_control"]["enabled"] = False
-    router_config = credentials_dir / "router.json5"
-    write_private_file(router_config, json.dumps(document).encode())
-    router = quiet([*CLI, "router", "--listen", endpoint, "--config", str(router_config)])
+    endpoint, files, router = start_router(
+        credentials_dir, "lab", ["robot1", "robot2", "robot3"], access_control=False
+    )
     echo = subprocess.Popen(
         [sys.executable, "-c", ECHO_PROCESS, endpoint, str(files["robot3"])],
         cwd=ROOT,

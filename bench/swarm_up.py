@@ -1,8 +1,9 @@
 """`swarm up` under a benchmark: start it on a free 127.0.0.1 port, ask its launcher and world
 for their status (typed replies, with the run's operator credentials), stop it, and make sure
-nothing it started outlives the benchmark.
+nothing it started outlives the benchmark; and `start_router`, a bare router with a run's
+logins for benchmarks that play the other processes themselves.
 
-Used by bench/swarm_runtime.py and bench/scale.py.
+Used by bench/swarm_runtime.py, bench/scale.py and bench/transport_floor.py.
 """
 
 from __future__ import annotations
@@ -16,13 +17,21 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from proc_stats import alive, descendants
 
 from robot_firmware.net.admin import admin_request
 from robot_firmware.net.messages import LauncherStatusReply, WorldStatusReply
-from swarm_config.credentials import ProcessCredentials, read_credentials
+from services.router.access import router_config_document
+from swarm_config.credentials import (
+    ROUTER_USERS_FILE,
+    ProcessCredentials,
+    generate_credential_set,
+    read_credentials,
+    write_credential_set,
+    write_private_file,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 OPERATOR_CREDENTIALS = Path("credentials") / "operator.json"
@@ -33,6 +42,41 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def start_router(
+    credentials_dir: Path,
+    swarm: str,
+    robots: list[str],
+    access_control: bool = True,
+    log: IO[bytes] | int = subprocess.DEVNULL,
+) -> tuple[str, dict[str, Path], subprocess.Popen[bytes]]:
+    """`swarm router` on a free 127.0.0.1 port with fresh logins for `robots` and the services
+    (written into `credentials_dir`) and, unless turned off, the run's access control: its
+    endpoint, every identity's credentials file, and the process (the caller stops it)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    credentials = generate_credential_set(swarm, robots)
+    files = write_credential_set(credentials_dir, credentials)
+    document = router_config_document(credentials, credentials_dir / ROUTER_USERS_FILE, [endpoint])
+    document["access_control"]["enabled"] = access_control
+    router_config = credentials_dir / "router.json5"
+    write_private_file(router_config, json.dumps(document).encode())
+    router = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "router",
+            "--listen",
+            endpoint,
+            "--config",
+            str(router_config),
+        ],
+        cwd=ROOT,
+        stdout=log,
+        stderr=log,
+    )
+    return endpoint, files, router
 
 
 class SwarmUp:

@@ -277,30 +277,18 @@ class FloorRun:
 
 def run_floor(robots: int, duration_s: float, work: Path) -> FloorRun:
     from proc_stats import CpuWindow, memory_mib
-    from swarm_up import free_port
-
-    from services.router.access import router_config_document
-    from swarm_config.credentials import (
-        ROUTER_USERS_FILE,
-        generate_credential_set,
-        write_credential_set,
-        write_private_file,
-    )
+    from swarm_up import start_router
 
     payloads = real_payloads(robots, work)
     payload_file = work / "payloads.json"
     payload_file.write_text(json.dumps(payloads), encoding="utf-8")
     names = list(payloads["sense"])
-    credentials_dir = work / "credentials"
-    credentials = generate_credential_set(SWARM, names)
-    files = write_credential_set(credentials_dir, credentials)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    document = router_config_document(credentials, credentials_dir / ROUTER_USERS_FILE, [endpoint])
-    router_config = credentials_dir / "router.json5"
-    write_private_file(router_config, json.dumps(document).encode())
+    endpoint, files, router = start_router(
+        work / "credentials", SWARM, names, log=(work / "router.log").open("wb")
+    )
     this = str(Path(__file__).resolve())
     common = ["--endpoint", endpoint, "--payloads", str(payload_file)]
-    children: dict[str, subprocess.Popen[str]] = {}
+    children: dict[str, subprocess.Popen[Any]] = {"router": router}
 
     def spawn(name: str, args: list[str]) -> subprocess.Popen[str]:
         child = subprocess.Popen(
@@ -314,19 +302,6 @@ def run_floor(robots: int, duration_s: float, work: Path) -> FloorRun:
         children[name] = child
         return child
 
-    spawn(
-        "router",
-        [
-            sys.executable,
-            "-m",
-            "services.cli.main",
-            "router",
-            "--listen",
-            endpoint,
-            "--config",
-            str(router_config),
-        ],
-    )
     try:
         for name in names:
             spawn(
@@ -406,16 +381,8 @@ def messages_per_second(robots: int) -> int:
     return per_tick * 100 + per_fifth * 20
 
 
-def robot_cpu(cpu: dict[str, float | None]) -> list[float]:
-    return [v for name, v in cpu.items() if name.startswith("robot") and v is not None]
-
-
 def total_cores(cpu: dict[str, float | None]) -> float:
     return sum(v for v in cpu.values() if v is not None) / 100.0
-
-
-def _cell(value: float | None, fmt: str) -> str:
-    return "-" if value is None else format(value, fmt)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -505,8 +472,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_figures(floor: FloorRun, swarm: dict[str, float | None] | None) -> dict[str, float | None]:
     """One run's row: the floor's and the real swarm's CPU, and the robot's ratio of the two."""
-    floor_robot = statistics.median(robot_cpu(floor.cpu_percent))
-    swarm_robot = statistics.median(robot_cpu(swarm)) if swarm and robot_cpu(swarm) else None
+    from scale import _median, _robots_of
+
+    floor_robot = statistics.median(_robots_of(floor.cpu_percent))
+    swarm_robot = _median(_robots_of(swarm)) if swarm else None
     return {
         "floor_robot": floor_robot,
         "floor_world": floor.cpu_percent.get("world"),
@@ -524,10 +493,10 @@ def run_figures(floor: FloorRun, swarm: dict[str, float | None] | None) -> dict[
 
 def table_row(robots: int, runs: list[dict[str, float | None]]) -> str:
     """The median over the runs of every figure (the answered share: the least)."""
+    from scale import _cell, _median
 
     def median(key: str) -> float | None:
-        values = [value for run in runs if (value := run[key]) is not None]
-        return statistics.median(values) if values else None
+        return _median([run[key] for run in runs])
 
     answered = min((run["answered_pct"] or 0.0) for run in runs)
     return (
