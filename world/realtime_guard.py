@@ -21,6 +21,15 @@ to 0.96 of real time while every robot still met 99.6 % of its deadlines; two pe
 drives at most 20 ms on a command that old, 1.8 cm at full speed) are what such a host needs,
 and a starved robot still exceeds them (docs/scale.md, "Real-time scale").
 
+**The world's own lag.**  The same rule holds for the world itself, as if it were one more
+seat whose answer is the newest sense tick it has published: simulated time never passes
+T(p + 1) + L·P, p that tick.  A world that the host starves (its loop behind its own clock,
+sense ticks late) is held like a starved robot, so its clock does not run away from its
+physics and the sense ticks it owes.  Without it, a world behind by seconds saw every act
+arrive seconds past its next sense tick; robots answering those late ticks never counted as
+caught up, so no seat held the clock, and the world's work grew with the wall time it was
+behind (docs/robustness.md, "A starved world").  The world never lapses: it is the simulator.
+
 **The clock.**  Simulated time is the wall clock minus an offset, capped at that horizon:
 `t_sim = min(mono - offset, horizon)`.  While the cap binds (the world is *held*), the offset
 grows with the wall clock, so when the slow robot answers the run carries on from where it was
@@ -94,7 +103,11 @@ class GuardStats:
     lead_periods: int
     hold_limit_s: float
     held_s: float
-    """Wall time during which simulated time stood still, waiting for a robot."""
+    """Wall time during which simulated time stood still, waiting for a robot or for the
+    world itself (`world_behind_s`)."""
+    world_behind_s: float
+    """The part of `held_s` when the world's own lag bound: its newest published sense tick
+    was more than the lead behind its clock."""
     holds: int
     longest_hold_s: float
     held_for_s: dict[str, float]
@@ -112,6 +125,7 @@ class GuardStats:
             "lead_periods": self.lead_periods,
             "hold_limit_s": self.hold_limit_s,
             "held_s": round(self.held_s, 6),
+            "world_behind_s": round(self.world_behind_s, 6),
             "holds": self.holds,
             "longest_hold_s": round(self.longest_hold_s, 6),
             "held_for_s": {name: round(s, 6) for name, s in self.held_for_s.items()},
@@ -152,6 +166,7 @@ class RealTimeGuard:
         self.holding = False
         """Whether the last `sim_time_ns` found the world held."""
         self.held_ns = 0
+        self.world_behind_ns = 0
         self.holds = 0
         self.longest_hold_ns = 0
         self.new_lapses: list[tuple[str, int | None]] = []
@@ -176,11 +191,19 @@ class RealTimeGuard:
         return self._tick0_ns + (tick - self._tick0) * self.period_ns
 
     def horizon_ns(self) -> int | None:
-        """How far simulated time may run now (None: no limit)."""
-        answers = [s.answered for s in self.seats.values() if s.waited_for]
-        if not self.enabled or not answers:
+        """How far simulated time may run now (None: no limit): the lead beyond the slowest
+        waited-for robot's answered period and beyond the world's own newest sense tick."""
+        if not self.enabled:
             return None
-        return self._seat_horizon_ns(min(a for a in answers if a is not None))
+        answers = [s.answered for s in self.seats.values() if s.waited_for]
+        world_ns = self._world_horizon_ns()
+        if not answers:
+            return world_ns
+        return min(self._seat_horizon_ns(min(a for a in answers if a is not None)), world_ns)
+
+    def _world_horizon_ns(self) -> int:
+        """The world's own seat: its newest published sense tick is its answer."""
+        return self._seat_horizon_ns(self._published)
 
     def _seat_horizon_ns(self, answered: int) -> int:
         return self.tick_time_ns(answered + 1 + self.lead_periods)
@@ -207,6 +230,8 @@ class RealTimeGuard:
         slip_ns = wanted_ns - now_ns
         self._offset_ns += slip_ns
         self.held_ns += slip_ns
+        if self._world_horizon_ns() == horizon:
+            self.world_behind_ns += slip_ns
         for name in blockers:
             self.seats[name].held_ns += slip_ns
         if not self.holding:
@@ -229,17 +254,24 @@ class RealTimeGuard:
     def _blockers(self, wanted_ns: int, mono_ns: int) -> list[str]:
         """The waited-for robots that hold the world back from `wanted_ns` now (those whose
         horizon binds, or lies behind the world's time); those that have done so for longer
-        than the hold limit lapse."""
+        than the hold limit lapse.  A robot is not to blame while the world's own lag binds
+        before its horizon does."""
         horizons = {
             name: self._seat_horizon_ns(seat.answered)
             for name, seat in self.seats.items()
             if self.enabled and seat.waited_for and seat.answered is not None
         }
-        binding_ns = max(min(horizons.values(), default=wanted_ns), self._sim_ns)
+        world_ns = self._world_horizon_ns()
+        binding_ns = max(min(*horizons.values(), world_ns, wanted_ns), self._sim_ns)
         blockers = []
         for name, seat in self.seats.items():
             horizon = horizons.get(name)
-            if horizon is None or horizon >= wanted_ns or horizon > binding_ns:
+            if (
+                horizon is None
+                or horizon >= wanted_ns
+                or horizon > binding_ns
+                or horizon >= world_ns  # it has answered every tick the world published
+            ):
                 seat.blocked_since_mono_ns = None
                 continue
             if seat.blocked_since_mono_ns is None:
@@ -322,6 +354,7 @@ class RealTimeGuard:
             lead_periods=self.lead_periods,
             hold_limit_s=self.hold_limit_ns / NS_PER_S,
             held_s=self.held_ns / NS_PER_S,
+            world_behind_s=self.world_behind_ns / NS_PER_S,
             holds=self.holds,
             longest_hold_s=self.longest_hold_ns / NS_PER_S,
             held_for_s={n: s.held_ns / NS_PER_S for n, s in self.seats.items()},

@@ -11,13 +11,14 @@ Clock modes:
 * real time (default): simulation time is wall time, except that the starvation guard
   (world/realtime_guard.py) holds it back so that it never runs more than two control periods
   (`starvation_lead_periods`) beyond the period the slowest live robot has answered (its act
-  messages carry the tick of the newest sense message it had): a starved host slows the run
-  down (real-time factor < 1) instead of letting robots drive blind, and a frozen robot holds
-  it for at most `starvation_hold_limit_s`.  The physics is integrated exactly from event to
-  event (duty change at the first `act_grid_ms` step after an act's arrival, frame due, sense
-  due; an act is applied at the loop's next pass and wakes it only while the time is held),
-  sense messages go out every control period
-  (repeated, with no new fix, while the time is held); a body whose last act message is older than
+  messages carry the tick of the newest sense message it had), nor beyond the newest sense tick
+  the world itself has published: a starved host slows the run down (real-time factor < 1)
+  instead of letting robots drive blind or the world's clock run away from the sense ticks it
+  owes, and a frozen robot holds it for at most `starvation_hold_limit_s`.  The physics is
+  integrated exactly from event to event (duty change at the first `act_grid_ms` step after an
+  act's arrival, frame due, sense due; an act is applied at the loop's next pass and wakes it
+  only while the time is held), sense messages go out every control period (repeated, with no
+  new fix, while the time is held); a body whose last act message is older than
   `act_timeout_ms` of simulated time, or that the guard stopped waiting for, is braked;
 * lockstep: per control period the world sends every robot its sense message with the tick
   number and waits until every *live* robot (liveliness token present) has answered that tick,

@@ -416,10 +416,12 @@ def _cmd_up(args: argparse.Namespace) -> int:
     guard = summary.get("starvation_guard") or {}
     if guard.get("enabled") and guard.get("holds"):
         passed_over = {name: n for name, n in guard["lapses"].items() if n}
+        behind_s = guard.get("world_behind_s") or 0.0
+        world_part = f", {behind_s:.1f} s of it for the world's own lag" if behind_s else ""
         print(
             f"  starvation guard: time held {guard['held_s']:.1f} s in {guard['holds']} holds "
-            f"for late robots (longest {1000 * guard['longest_hold_s']:.0f} ms); passed over: "
-            f"{passed_over or 'none'}"
+            f"for late robots{world_part} (longest {1000 * guard['longest_hold_s']:.0f} ms); "
+            f"passed over: {passed_over or 'none'}"
         )
     timings = summary.get("control_timing") or {}
     for name, timing in timings.items() if summary["clock_mode"] == "real_time" else ():

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.wire import ActMessage, encode_act
@@ -152,21 +153,46 @@ def _drain_acts_that_came_at(
     return counting.ends_ns
 
 
+# The grid tests run the clock unguarded, as the plain wall clock: a drain slower than the
+# guard's lead (a first physics step compiled on the spot, a loaded host) would otherwise find
+# the world behind its own clock and held (test_a_world_drained_seconds_late_... below).
+
+
 def test_acts_that_come_within_one_grid_step_share_one_physics_step() -> None:
-    world = world_of(lockstep=False)  # act_grid_ms 1 by default
+    world = world_of(lockstep=False, starvation_guard=False)  # act_grid_ms 1 by default
     ends = _drain_acts_that_came_at(world, [200_000, 500_000, 900_000, 2_300_000])
     assert ends == [MS, 3 * MS]
     np.testing.assert_allclose(world.duty[:, 0], [0.4, 0.2, 0.3])
 
 
 def test_a_grid_step_that_does_not_divide_the_period_stops_at_the_sense_tick() -> None:
-    world = world_of(lockstep=False, act_grid_ms=3.0)
+    world = world_of(lockstep=False, act_grid_ms=3.0, starvation_guard=False)
     # Drained late, at 11 ms: the second act's grid step (12 ms) is past the sense tick.
     ends = _drain_acts_that_came_at(world, [8_500_000, 9_500_000], drained_at_ns=11 * MS)
     assert ends == [9 * MS, 10 * MS]
 
 
 def test_without_a_grid_each_act_has_its_own_physics_step() -> None:
-    world = world_of(lockstep=False, act_grid_ms=0.0)
+    world = world_of(lockstep=False, act_grid_ms=0.0, starvation_guard=False)
     ends = _drain_acts_that_came_at(world, [200_000, 500_000, 900_000, 2_300_000])
     assert ends == [200_000, 500_000, 900_000, 2_300_000]
+
+
+def test_a_world_drained_seconds_late_keeps_its_physics_within_the_lead_of_its_sense_ticks() -> (
+    None
+):
+    """A starved world loop holds its own clock (world/realtime_guard.py, "The world's own
+    lag"): acts that came seconds after its last sense tick reach its physics at most the
+    lead beyond it, not seconds ahead of the sense ticks it still owes."""
+    world = world_of(lockstep=False)
+    lead_ns = world.config.starvation_lead_periods * 10 * MS
+    ends = _drain_acts_that_came_at(
+        world, [1_000 * MS, 2_000 * MS, 4_000 * MS], drained_at_ns=5_000 * MS
+    )
+    # No tick published yet: the world's own horizon is the lead past tick 0's due time.
+    assert max(ends) == lead_ns
+    np.testing.assert_allclose(world.duty[:, 0], [0.1, 0.2, 0.3])
+    assert world.guard.holding
+    stats = world.guard.stats()
+    assert stats.world_behind_s == pytest.approx(5.0 - lead_ns / 1e9, abs=0.5)
+    assert not any(stats.lapses.values())

@@ -199,9 +199,51 @@ def test_an_exempt_robot_is_not_waited_for_nor_braked() -> None:
     assert "robot2" in guard.waited_for()
 
 
+def test_a_world_behind_its_own_clock_holds_it_as_a_starved_robot_would() -> None:
+    guard = running_guard()
+    publish_through(guard, 5)
+    for name in ROBOTS:
+        guard.answer(name, 5)  # every robot has answered every tick published
+    # The world's loop stalls: tick 6 is due at 60 ms and not published.  Its own seat's
+    # horizon, one period beyond tick 5's period, is 70 ms.
+    assert guard.horizon_ns() == 70 * MS
+    assert guard.sim_time_ns(69 * MS) == 69 * MS and not guard.holding
+    assert guard.sim_time_ns(2_000 * MS) == 70 * MS and guard.holding
+    stats = guard.stats()
+    assert stats.held_s == pytest.approx(1.930) and stats.world_behind_s == stats.held_s
+    # No robot is to blame: none held the world, none lapsed past the hold limit (500 ms).
+    assert stats.held_for_s == dict.fromkeys(ROBOTS, 0.0)
+    assert stats.lapses == dict.fromkeys(ROBOTS, 0) and not guard.braked()
+    # Caught up, the world carries on from where its clock stood instead of racing.
+    guard.published(6)
+    for name in ROBOTS:
+        guard.answer(name, 6)
+    assert guard.sim_time_ns(2_005 * MS) == 75 * MS and not guard.holding
+
+
+def test_a_robot_behind_a_world_that_is_behind_is_blamed_only_for_its_own_lag() -> None:
+    guard = running_guard()
+    publish_through(guard, 5)
+    for name in ("robot1", "robot3"):
+        guard.answer(name, 5)
+    guard.answer("robot2", 3)  # robot2's horizon, 50 ms, binds before the world's, 70 ms
+    times = run_world_stalled(guard, 0, 1_000)
+    assert times[-1] == 70 * MS  # robot2 lapsed; then the world's own lag held the time
+    stats = guard.stats()
+    assert stats.lapses == {"robot1": 0, "robot2": 1, "robot3": 0}
+    assert stats.held_for_s["robot2"] == pytest.approx(HOLD_LIMIT_NS / 1e9, abs=0.002)
+    assert stats.world_behind_s == pytest.approx(1.0 - 0.07 - HOLD_LIMIT_NS / 1e9, abs=0.003)
+
+
+def run_world_stalled(guard: RealTimeGuard, from_ms: int, to_ms: int) -> list[int]:
+    """A world loop that asks the time every millisecond and publishes nothing."""
+    return [guard.sim_time_ns(mono_ms * MS) for mono_ms in range(from_ms, to_ms)]
+
+
 def test_with_the_guard_off_the_clock_is_the_wall_clock() -> None:
     guard = running_guard(enabled=False)
     guard.answer("robot2", 0)
+    # Neither the robots nor the world, which has published tick 0 only, hold it.
     assert guard.sim_time_ns(3_000 * MS) == 3_000 * MS
     assert guard.horizon_ns() is None and not guard.braked() and not guard.waited_for()
     assert guard.stats().held_s == 0.0
