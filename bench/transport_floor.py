@@ -26,8 +26,14 @@ the same N then runs as a real `swarm up` (bench/scale.py `run_once`) and its ro
 and router's CPU stand beside the floor's, so the share of a robot process that is transport
 is a ratio of one run.  Each row is the median of `--repeats` runs.
 
+With `--batched-rx` every floor run is followed by a second one in which the stand-in world
+sends the frames one relay pass takes as one message per receiver (the frames joined end to
+end; the stand-in robots split them), instead of one message per frame and receiver: what
+batching the radio's N (N - 1) fan-out would save.  Its rows say `batch` in the relay column,
+and "frames/put" is how many frames a `radio/rx` message carried on average, as measured.
+
     .venv/bin/python bench/transport_floor.py [--sizes 3,12,24,30] [--duration 20]
-                                              [--repeats 3] [--no-swarm]
+                                              [--repeats 3] [--no-swarm] [--batched-rx]
 """
 
 from __future__ import annotations
@@ -74,8 +80,11 @@ def drain(queue: deque[Any]) -> int:
     return taken
 
 
-def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], name: str) -> None:
+def stand_in_robot(
+    endpoint: str, credentials: Path, payloads: dict[str, Any], name: str, batched_rx: bool
+) -> None:
     """A robot process's messaging without its firmware (module docstring)."""
+    from robot_firmware.net.frames import FRAME_BYTES
     from robot_firmware.net.keys import SwarmKeys
     from robot_firmware.net.session import open_client
     from swarm_config.credentials import read_credentials
@@ -95,7 +104,13 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
         wake.set()
 
     def on_frame(sample: Any) -> None:
-        frames.append(sample.payload.to_bytes())
+        payload = sample.payload.to_bytes()
+        if batched_rx:
+            frames.extend(
+                payload[at : at + FRAME_BYTES] for at in range(0, len(payload), FRAME_BYTES)
+            )
+        else:
+            frames.append(payload)
 
     def on_token(sample: Any) -> None:
         tokens.append(str(sample.key_expr))
@@ -128,7 +143,9 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
     print(json.dumps({"answered": answered, "frames": frames_taken}))
 
 
-def stand_in_world(endpoint: str, credentials: Path, payloads: dict[str, Any]) -> None:
+def stand_in_world(
+    endpoint: str, credentials: Path, payloads: dict[str, Any], batched_rx: bool
+) -> None:
     """The world's messaging without its engine (module docstring)."""
     from robot_firmware.net.keys import SwarmKeys
     from robot_firmware.net.session import open_client
@@ -160,20 +177,31 @@ def stand_in_world(endpoint: str, credentials: Path, payloads: dict[str, Any]) -
     def on_alive(sample: Any) -> None:
         alive.add(SwarmKeys.last_chunk(str(sample.key_expr)))
 
-    relayed = 0
+    relayed = rx_puts = 0
 
     def relay(rx_pubs: dict[str, Any]) -> None:
-        nonlocal relayed
+        nonlocal relayed, rx_puts
         while not stop.is_set():
             frame_queued.wait(0.05)
             frame_queued.clear()
+            taken: list[tuple[str, bytes]] = []
             while queued_frames:
                 key, payload = queued_frames.popleft()
-                sender = SwarmKeys.last_chunk(key)
-                for receiver, publisher in rx_pubs.items():
-                    if receiver != sender:
-                        publisher.put(payload)
-                        relayed += 1
+                taken.append((SwarmKeys.last_chunk(key), payload))
+            if not batched_rx:  # frame by frame, in arrival order, as the world does
+                for sender, payload in taken:
+                    for receiver, publisher in rx_pubs.items():
+                        if receiver != sender:
+                            publisher.put(payload)
+                            relayed += 1
+                            rx_puts += 1
+                continue
+            for receiver, publisher in rx_pubs.items():
+                theirs = [payload for sender, payload in taken if sender != receiver]
+                if theirs:
+                    publisher.put(b"".join(theirs))
+                    relayed += len(theirs)
+                    rx_puts += 1
 
     late_ns: list[int] = []
     acts_taken = telemetry_taken = ticks = 0
@@ -221,6 +249,7 @@ def stand_in_world(endpoint: str, credentials: Path, payloads: dict[str, Any]) -
                 "acts": acts_taken,
                 "telemetry": telemetry_taken,
                 "relayed": relayed,
+                "rx_puts": rx_puts,
                 "late_p99_ms": p99,
             }
         )
@@ -271,11 +300,13 @@ class FloorRun:
     late_p99_ms: float | None
     answered_share: float
     """Least share, over the stand-in robots, of the world's ticks each answered."""
+    frames_per_rx_put: float | None
+    """Frames a `radio/rx` message carried on average: 1 unless the relay batched them."""
     payload_bytes: dict[str, float]
     rss_mib: dict[str, float | None]
 
 
-def run_floor(robots: int, duration_s: float, work: Path) -> FloorRun:
+def run_floor(robots: int, duration_s: float, work: Path, batched_rx: bool = False) -> FloorRun:
     from proc_stats import CpuWindow, memory_mib
     from swarm_up import start_router
 
@@ -288,6 +319,8 @@ def run_floor(robots: int, duration_s: float, work: Path) -> FloorRun:
     )
     this = str(Path(__file__).resolve())
     common = ["--endpoint", endpoint, "--payloads", str(payload_file)]
+    if batched_rx:
+        common.append("--batched-rx")
     children: dict[str, subprocess.Popen[Any]] = {"router": router}
 
     def spawn(name: str, args: list[str]) -> subprocess.Popen[str]:
@@ -356,11 +389,13 @@ def run_floor(robots: int, duration_s: float, work: Path) -> FloorRun:
         for kind in ("sense", "act", "frame", "telemetry")
     }
     sizes["truth"] = len(bytes.fromhex(payloads["truth"]))
+    rx_puts = reports["world"]["rx_puts"]
     return FloorRun(
         robots=robots,
         cpu_percent=cpu,
         late_p99_ms=reports["world"]["late_p99_ms"],
         answered_share=answered,
+        frames_per_rx_put=reports["world"]["relayed"] / rx_puts if rx_puts else None,
         payload_bytes=sizes,
         rss_mib={name: rss for name, (rss, _) in memory.items()},
     )
@@ -373,12 +408,14 @@ def _expect_line(child: subprocess.Popen[str], line: str, name: str) -> None:
         raise RuntimeError(f"stand-in {name} said {got!r} instead of {line!r}; see its log")
 
 
-def messages_per_second(robots: int) -> int:
+def messages_per_second(robots: int, frames_per_rx_put: float | None = None) -> int:
     """Messages the router forwards a second: sense, act, clock; at 20 Hz each robot's frame,
-    its N - 1 deliveries and its telemetry; the truth."""
+    its N - 1 deliveries (in `radio/rx` messages of `frames_per_rx_put` frames, 1 unless
+    batched) and its telemetry; the truth."""
     per_tick = robots * 2 + 1
-    per_fifth = robots * (1 + (robots - 1) + 1) + 1
-    return per_tick * 100 + per_fifth * 20
+    deliveries = (robots - 1) / (frames_per_rx_put or 1.0)
+    per_fifth = robots * (1 + deliveries + 1) + 1
+    return round(per_tick * 100 + per_fifth * 20)
 
 
 def total_cores(cpu: dict[str, float | None]) -> float:
@@ -400,6 +437,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_false",
         help="skip the real `swarm up` run beside each floor run",
     )
+    parser.add_argument(
+        "--batched-rx",
+        action="store_true",
+        help="after each floor run, run it again with the frames of one relay pass sent as one "
+        "message per receiver (rows marked 'batch')",
+    )
     parser.add_argument("--stand-in", choices=("robot", "world"), help=argparse.SUPPRESS)
     parser.add_argument("--name", help=argparse.SUPPRESS)
     parser.add_argument("--endpoint", help=argparse.SUPPRESS)
@@ -409,9 +452,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.stand_in is not None:
         payloads = json.loads(args.payloads.read_text(encoding="utf-8"))
         if args.stand_in == "robot":
-            stand_in_robot(args.endpoint, args.credentials, payloads, args.name)
+            stand_in_robot(args.endpoint, args.credentials, payloads, args.name, args.batched_rx)
         else:
-            stand_in_world(args.endpoint, args.credentials, payloads)
+            stand_in_world(args.endpoint, args.credentials, payloads, args.batched_rx)
         return 0
     try:
         sizes = [int(part) for part in args.sizes.split(",") if part.strip()]
@@ -435,7 +478,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print()
     header = (
-        f"{'N':>3} {'msgs/s':>7} | {'floor robot':>11} {'world':>6} {'router':>6} "
+        f"{'N':>3} {'relay':>5} {'frames/put':>10} {'msgs/s':>7} | "
+        f"{'floor robot':>11} {'world':>6} {'router':>6} "
         f"{'cores':>6} {'late p99':>8} {'answered':>8} | {'swarm robot':>11} {'world':>6} "
         f"{'router':>6} {'cores':>6} | {'floor/swarm robot':>17}"
     )
@@ -444,12 +488,17 @@ def main(argv: list[str] | None = None) -> int:
     floors = []
     with tempfile.TemporaryDirectory(prefix="transport-floor-") as tmp:
         for robots in sizes:
-            runs = []
+            runs, batched_runs = [], []
             for repeat in range(args.repeats):
                 work = Path(tmp) / f"floor-{robots}-{repeat}"
                 work.mkdir()
                 floor = run_floor(robots, args.duration, work)
                 floors.append(floor)
+                if args.batched_rx:
+                    batched_work = Path(tmp) / f"batched-{robots}-{repeat}"
+                    batched_work.mkdir()
+                    batched = run_floor(robots, args.duration, batched_work, batched_rx=True)
+                    batched_runs.append(run_figures(batched, None))
                 swarm = None
                 if args.swarm:
                     swarm_work = Path(tmp) / f"swarm-{robots}-{repeat}"
@@ -459,7 +508,9 @@ def main(argv: list[str] | None = None) -> int:
                     except RuntimeError as exc:
                         print(f"# swarm of {robots}, run {repeat + 1}: {exc}", flush=True)
                 runs.append(run_figures(floor, swarm))
-            print(table_row(robots, runs), flush=True)
+            print(table_row(robots, "frame", runs), flush=True)
+            if batched_runs:
+                print(table_row(robots, "batch", batched_runs), flush=True)
     robot_rss = [
         v for floor in floors for n, v in floor.rss_mib.items() if n.startswith("robot") and v
     ]
@@ -483,6 +534,7 @@ def run_figures(floor: FloorRun, swarm: dict[str, float | None] | None) -> dict[
         "floor_cores": total_cores(floor.cpu_percent),
         "late_p99_ms": floor.late_p99_ms,
         "answered_pct": 100 * floor.answered_share,
+        "frames_per_rx_put": floor.frames_per_rx_put,
         "swarm_robot": swarm_robot,
         "swarm_world": swarm.get("world") if swarm else None,
         "swarm_router": swarm.get("router") if swarm else None,
@@ -491,7 +543,7 @@ def run_figures(floor: FloorRun, swarm: dict[str, float | None] | None) -> dict[
     }
 
 
-def table_row(robots: int, runs: list[dict[str, float | None]]) -> str:
+def table_row(robots: int, relay: str, runs: list[dict[str, float | None]]) -> str:
     """The median over the runs of every figure (the answered share: the least)."""
     from scale import _cell, _median
 
@@ -500,7 +552,8 @@ def table_row(robots: int, runs: list[dict[str, float | None]]) -> str:
 
     answered = min((run["answered_pct"] or 0.0) for run in runs)
     return (
-        f"{robots:>3} {messages_per_second(robots):>7} | "
+        f"{robots:>3} {relay:>5} {_cell(median('frames_per_rx_put'), '.2f'):>10} "
+        f"{messages_per_second(robots, median('frames_per_rx_put')):>7} | "
         f"{_cell(median('floor_robot'), '.1f'):>11} {_cell(median('floor_world'), '.1f'):>6} "
         f"{_cell(median('floor_router'), '.1f'):>6} {_cell(median('floor_cores'), '.2f'):>6} "
         f"{_cell(median('late_p99_ms'), '.2f'):>8} {answered:>7.1f}% | "
