@@ -20,6 +20,12 @@ note on stderr (rebuild with `python -m robot_firmware.control.aot`; scripts/ens
 the Dockerfile do).  The compiled functions check no types themselves (a wrong dtype would read
 past an array), so every call goes through `AotKernel`, which compares each argument with the
 signature the module was built for and runs the Python function when one differs.
+
+The JIT's disk cache is named the same way (`use_jit_cache`): one directory per state of the
+sources of every compiled kernel (this package, world/, services/sim/, swarm_config/), since
+numba would otherwise load a cached kernel of world/ or services/sim/ with the control kernels
+it calls as they were when it was compiled.  The world package imports this module first, so
+its kernels are cached there too.
 """
 
 from __future__ import annotations
@@ -31,8 +37,9 @@ import importlib.util
 import json
 import os
 import platform
+import shutil
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,18 +51,29 @@ AOT_DIR_ENV = "SWARM_AOT_DIR"
 MODES = ("jit", "aot")
 PACKAGE_DIR = Path(__file__).resolve().parent
 MODULE_PREFIX = "control_kernels_"
+JIT_CACHE_PREFIX = "numba-"
+COMPILED_SOURCE_DIRS = (
+    PACKAGE_DIR,
+    PACKAGE_DIR.parents[1] / "world",
+    PACKAGE_DIR.parents[1] / "services" / "sim",
+    PACKAGE_DIR.parents[1] / "swarm_config",
+)
+"""Where the JIT's kernels and the compiled code that calls them are written: these kernels,
+the world's and the batch simulator's (which call them), and the configuration they read."""
 
 ArgSpec = Any
 """What `AotKernel` checks an argument against (JSON): ["a", dtype, ndim] for a C-contiguous
 array, ["t", [specs]] for a tuple, ["f"], ["i"], ["b"] for a float, int or bool."""
 
 
-def source_hash() -> str:
-    """Hash of the kernels' sources (every .py file of this package) and the tool versions."""
+def source_hash(directories: Sequence[Path] | None = None) -> str:
+    """Hash of the sources (every .py file of `directories`, this package by default) and the
+    tool versions."""
     digest = hashlib.sha256()
-    for path in sorted(PACKAGE_DIR.glob("*.py")):
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
+    for directory in (PACKAGE_DIR,) if directories is None else directories:
+        for path in sorted(directory.glob("*.py")):
+            digest.update(f"{directory.name}/{path.name}".encode())
+            digest.update(path.read_bytes())
     for name in ("numpy", "numba", "llvmlite"):
         digest.update(f"{name}={_version(name)}".encode())
     digest.update(f"{sys.version}|{platform.machine()}".encode())
@@ -224,8 +242,39 @@ def kernel_key(function: Callable[..., Any]) -> str:
     return f"{function.__module__}.{function.__qualname__}"
 
 
+def use_jit_cache(
+    source_dirs: Sequence[Path] = COMPILED_SOURCE_DIRS, root: Path | None = None
+) -> Path | None:
+    """Have numba cache the kernels decorated from now on in a directory of their own for
+    this state of `source_dirs` (`root`/numba-<source_hash>; `root` is $NUMBA_CACHE_DIR, else
+    this package's __pycache__), and remove the directories of other states.  Returns the
+    directory, or None (numba's own places are left in use) where it cannot be made.
+
+    numba keys a cached function by its own source file only: a kernel whose callee in another
+    file changed would load its old machine code, callee and all.  With a directory per state
+    of every file that holds kernels, an edit anywhere compiles them all again (once)."""
+    import numba
+
+    if root is None:
+        root = Path(os.environ.get("NUMBA_CACHE_DIR") or PACKAGE_DIR / "__pycache__")
+    directory = root / f"{JIT_CACHE_PREFIX}{source_hash(source_dirs)}"
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    for other in root.glob(JIT_CACHE_PREFIX + "*"):
+        if other != directory and other.is_dir():
+            # A process still running on those sources finds its files gone and compiles.
+            shutil.rmtree(other, ignore_errors=True)
+    numba.config.CACHE_DIR = str(directory)  # type: ignore[attr-defined]
+    return directory
+
+
 if MODE == "jit":
     import numba
+
+    JIT_CACHE_DIR = use_jit_cache()
+    """Where numba caches the compiled kernels of this process (None: numba's own places)."""
 
     prange: Any = numba.prange
     vectorize: Any = numba.vectorize
