@@ -342,7 +342,7 @@ def sonar_beam_points(
     return from_rows(_beam_rows(p, gap, k.beam_angles_rad, k.body_radius_m), batch)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def control_robots(
     first: int,
     stop: int,
@@ -364,7 +364,9 @@ def control_robots(
     output array (the arrays are unpacked once for all of them).
 
     scratch_ok (R, P) and scratch_pose (R, P, 3) hold the peers seen this tick; origin is a
-    zero pose, the leader's while none is heard.
+    zero pose, the leader's while none is heard.  It makes no array of its own (rows are copied
+    element by element), so numba compiles it without its memory runtime and its row views
+    cost no reference counting (`kernels.njit`'s `allocates=False`).
     """
     pose_in, rate_in, integral_in, previous_error, rate_prev, offset_in, echo_in, side_in = state_f
     previous_counts, localised_in, saturated_in, started_in, echo_valid_in = state_b
@@ -391,7 +393,8 @@ def control_robots(
             pose_in[i], rate_in[i], previous_counts[i], counts[i], k.dt_s, k.metres_per_count,
             k.wheel_base_m, k.rate_tau_s, pose[i], rate[i],
         )  # fmt: skip
-        previous_counts_out[i, :] = counts[i]
+        for w in range(4):
+            previous_counts_out[i, w] = counts[i, w]
         localised[i] = fuse_fix(pose[i], localised_in[i], fix_pose[i], fix_valid[i], k.fix_gain)
         x = pose[i, 0]
         y = pose[i, 1]
@@ -411,8 +414,9 @@ def control_robots(
             if leader < 0 and peer_ok[j] and peer_is_leader[i, j]:
                 leader = j
         if is_leader[i]:
-            desired[i, :] = reference_pose[i]
-            desired_rate[i, :] = reference_rate[i]
+            for a in range(3):
+                desired[i, a] = reference_pose[i, a]
+                desired_rate[i, a] = reference_rate[i, a]
         else:
             # No leader heard: the slot of a leader at the origin (the robot stays inactive).
             leader_pose = peer_pose[leader] if leader >= 0 else origin
@@ -458,8 +462,10 @@ def control_robots(
                         )
                 echo_valid[i, s] = echo and not explained
         else:
-            echo_points[i, :, :] = echo_in[i]
-            echo_valid[i, :] = echo_valid_in[i]
+            for s in range(beams):
+                echo_points[i, s, 0] = echo_in[i, s, 0]
+                echo_points[i, s, 1] = echo_in[i, s, 1]
+                echo_valid[i, s] = echo_valid_in[i, s]
         echo_x = 0.0
         echo_y = 0.0
         for s in range(beams):

@@ -279,8 +279,23 @@ if MODE == "jit":
     prange: Any = numba.prange
     vectorize: Any = numba.vectorize
 
-    def njit(*args: Any, **options: Any) -> Any:
-        """numba.njit, recording the kernel for the ahead-of-time build."""
+    from numba.core.options import DefaultOptions
+
+    NO_RUNTIME_OPTION: str | None = "_nrt" if hasattr(DefaultOptions, "_nrt") else None
+    """numba's own target option that turns its memory runtime (NRT) off for one function
+    (checked with numba 0.68.1); None in a numba without it."""
+
+    def njit(*args: Any, allocates: bool = True, **options: Any) -> Any:
+        """numba.njit, recording the kernel for the ahead-of-time build.
+
+        `allocates=False` says the kernel makes no array of its own (no `np.empty`, no copy,
+        no slice assigned from another array); numba then compiles it without its memory
+        runtime (NRT), so every row view it takes (`pose[i]`, `counts[i]`) costs no atomic
+        reference count.  A kernel so marked that does allocate fails to compile ("NRT
+        required but not enabled").  Where numba has no such option, the kernel compiles
+        as any other."""
+        if not allocates and NO_RUNTIME_OPTION is not None:
+            options = {**options, NO_RUNTIME_OPTION: False}
 
         def decorate(function: Callable[..., Any]) -> Any:
             dispatcher = numba.njit(**options)(function)
@@ -294,8 +309,10 @@ if MODE == "jit":
 else:
     prange = range
 
-    def njit(*args: Any, **options: Any) -> Any:
-        """The function from the ahead-of-time module (as `AotKernel`), else plain Python."""
+    def njit(*args: Any, allocates: bool = True, **options: Any) -> Any:
+        """The function from the ahead-of-time module (as `AotKernel`), else plain Python
+        (the module is built with numba's memory runtime for every kernel: `allocates` and
+        the options do not apply)."""
 
         def decorate(function: Callable[..., Any]) -> Any:
             export = _AOT_FUNCTIONS.get(kernel_key(function))
