@@ -523,7 +523,11 @@ class WorldProcess:
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
         telemetry = parse_message(TelemetryMessage, sample.payload.to_bytes())
-        if telemetry is None or telemetry.robot not in self.index:
+        # The key names the sender (the router lets robotN put only on its own key); a sample
+        # that names another robot is a robot speaking for another, refused like the medium
+        # refuses such a radio frame.
+        sender = SwarmKeys.last_chunk(str(sample.key_expr))
+        if telemetry is None or telemetry.robot not in self.index or telemetry.robot != sender:
             self.malformed_telemetry += 1
         else:
             self._telemetry.put(telemetry)

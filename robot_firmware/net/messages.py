@@ -48,11 +48,17 @@ Axes = tuple[float, float, float]
 
 Role = Literal["leader", "follower"]
 
+MAX_MESSAGE_TIME_S = 1e9
+"""The largest simulated time, in seconds either side of 0, a telemetry sample may carry (some
+31 years): its stamp in integer nanoseconds, which the world keys samples by, stays finite."""
+
 
 class Message(BaseModel):
-    """Base of every JSON message: immutable, unknown fields ignored when read."""
+    """Base of every JSON message: immutable, unknown fields ignored when read, and no NaN or
+    infinity in a float field (no producer sends one: pydantic writes them as null), so a reader
+    never does arithmetic on one from the network."""
 
-    model_config = ConfigDict(extra="ignore", frozen=True)
+    model_config = ConfigDict(extra="ignore", frozen=True, allow_inf_nan=False)
 
     def to_json_bytes(self) -> bytes:
         return self.model_dump_json().encode()
@@ -107,7 +113,7 @@ class TelemetryMessage(Message):
     The control fields (desired ... active) are absent before the first control tick."""
 
     robot: str
-    t_s: float
+    t_s: float = Field(ge=-MAX_MESSAGE_TIME_S, le=MAX_MESSAGE_TIME_S)
     role: Role | None = None
     """Whether the robot acts as leader now (robot_firmware/leadership.py), not its scenario
     role: after a failover another robot leads."""

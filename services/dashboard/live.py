@@ -229,8 +229,9 @@ class DashboardService:
         """Rejected samples per reason: `not_json`, `does_not_fit` (MessageDropReason),
         `non_finite`, `out_of_range` (a number no producer sends), `missing_robots` (a truth
         sample without every robot of the scenario), `unknown_robot` (telemetry of a robot
-        the scenario does not name), `nothing_to_draw` (telemetry without an estimate or
-        gains)."""
+        the scenario does not name), `wrong_sender` (telemetry naming another robot than the
+        one whose key it came on: the router lets each robot put only on its own),
+        `nothing_to_draw` (telemetry without an estimate or gains)."""
 
     # -- zenoh callbacks: queue and return ------------------------------------------------
 
@@ -328,7 +329,8 @@ class DashboardService:
         if sample.kind == "event":
             update = self.event_update(sample.payload)
         else:
-            update = self.update_for(sample.kind, sample.payload, sample.received_s)
+            sender = SwarmKeys.last_chunk(sample.key) if sample.kind == "telemetry" else None
+            update = self.update_for(sample.kind, sample.payload, sample.received_s, sender)
         if isinstance(update, str):
             self.counts["rejected"] += 1
             self.rejected[update] += 1
@@ -387,9 +389,11 @@ class DashboardService:
         kind: Literal["truth", "telemetry"],
         payload: bytes,
         received_s: float | None = None,
+        sender: str | None = None,
     ) -> Update | str:
         """The records one truth or telemetry sample makes, or why it is rejected (a reason
-        of `rejected`); `received_s`: when a truth sample arrived (monotonic seconds).
+        of `rejected`); `received_s`: when a truth sample arrived (monotonic seconds);
+        `sender`: the robot whose key a telemetry sample came on (None: not checked).
         Nothing is logged here."""
         if kind == "truth":
             truth = parse_message_or_reason(TruthMessage, payload)
@@ -404,6 +408,8 @@ class DashboardService:
             return telemetry.value
         if (problem := _number_problem(telemetry.model_dump())) is not None:
             return problem
+        if sender is not None and telemetry.robot != sender:
+            return "wrong_sender"
         update = self.scene.on_telemetry(telemetry)
         if update is None:
             return "unknown_robot" if telemetry.robot not in self.scene.names else "nothing_to_draw"

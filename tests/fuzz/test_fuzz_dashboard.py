@@ -26,7 +26,7 @@ from tests.fuzz.processes import PAPER, make_robot, make_world
 INPUTS = 10_000
 REASONS = frozenset(
     ("not_json", "does_not_fit", "non_finite", "out_of_range", "missing_robots")
-    + ("unknown_robot", "nothing_to_draw")
+    + ("unknown_robot", "wrong_sender", "nothing_to_draw")
 )
 
 
@@ -115,3 +115,16 @@ def test_telemetry_samples(dashboard: DashboardService) -> None:
         return message
 
     fuzz_samples("dashboard telemetry", dashboard, "telemetry", valid, 9)
+
+
+def test_telemetry_naming_another_robot_than_its_key_is_not_drawn(
+    dashboard: DashboardService,
+) -> None:
+    robot = make_robot("robot2")
+    robot.control_tick(robot.process.period_ns)
+    payload = robot.process.telemetry(robot.process.period_ns).to_json_bytes()
+    before = _scene_state(dashboard)
+    assert dashboard.update_for("telemetry", payload, sender="robot3") == "wrong_sender"
+    assert _scene_state(dashboard) == before
+    drawn = dashboard.update_for("telemetry", payload, sender="robot2")
+    assert not isinstance(drawn, str) and drawn.records

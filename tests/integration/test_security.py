@@ -256,6 +256,57 @@ def test_no_identity_but_the_operator_can_read_steer_jam_or_kill(live_swarm: Liv
     assert scratch_after == scratch_before
 
 
+def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_another(
+    live_swarm: LiveSwarm,
+) -> None:
+    """robot2 puts, on its own telemetry key (which the router lets it), stamps no run
+    reaches and samples naming robot3 as the leader of a term far ahead.  The world must stay
+    up (same process), count each sample as malformed, and keep robot1 as the leader."""
+    live = live_swarm
+    status = live.wait_for(
+        lambda: (
+            (s := live.admin("status")).get("ok")
+            and all(p["running"] for p in s["processes"].values())
+            and s
+        )
+    )
+    world_pid = status["processes"]["world"]["pid"]
+    live.wait_for(lambda: (live.out / "summary.json").exists(), 60)
+    robot2 = _open(live, _credentials(live, "robot2"))
+    operator = _open(live, _credentials(live, "operator"))
+    world_t_s = live.wait_for(lambda: _world_t_ns(operator)) / 1e9
+    lies = [
+        b'{"robot": "robot2", "t_s": NaN}',
+        b'{"robot": "robot2", "t_s": Infinity}',
+        b'{"robot": "robot2", "t_s": 1e300}',
+        json.dumps({"robot": "robot3", "t_s": world_t_s, "role": "leader", "term": 999}).encode(),
+    ]
+    repeats = 5
+    for _ in range(repeats):
+        for payload in lies:
+            robot2.put(KEYS.telemetry("robot2"), payload)
+        time.sleep(0.1)
+    robot2.close()
+    operator.close()
+
+    def counted() -> dict | None:  # the summary is written every 5 s
+        summary = json.loads((live.out / "summary.json").read_text())
+        return summary if summary["malformed_telemetry"] >= repeats * len(lies) else None
+
+    summary = live.wait_for(counted, 30, describe="every lie counted as malformed telemetry")
+    after = live.admin("status")["processes"]["world"]
+    print(
+        f"\nrobot2's lies: {repeats * len(lies)} sent, {summary['malformed_telemetry']} counted "
+        f"malformed; world pid {world_pid} -> {after['pid']}; leader {summary['leader']}"
+    )
+    assert after["pid"] == world_pid and after["running"]
+    assert summary["malformed_telemetry"] == repeats * len(lies)
+    assert summary["leader"] == "robot1"
+    assert "Traceback" not in (live.out / "logs" / "world.log").read_text()
+    events = (live.out / "events.jsonl").read_text().splitlines()
+    assert not [e for e in events if json.loads(e).get("kind") == "leader_change"], events
+
+
 def _world_t_ns(operator: zenoh.Session) -> float | None:
     replies = _replies(operator, KEYS.admin("world", "status"))
     if not replies:
