@@ -127,7 +127,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 class LeadershipParams(BaseModel):
     """Constants of the election rule."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     leader_timeout_s: PositiveFloat = 0.5
     """A leader unheard for this long is lost: 10 broadcast periods at 20 Hz."""

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 class BodyParams(BaseModel):
     """The paper's robot (L = 0.25 m, r = 0.0508 m) and the hardware effects modelled."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     wheel_base_m: PositiveFloat = 0.25
     wheel_radius_m: PositiveFloat = 0.0508

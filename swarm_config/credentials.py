@@ -95,7 +95,7 @@ def _check_hex(value: str, n_bytes: int, what: str) -> str:
 class ProcessCredentials(BaseModel):
     """What one process needs to join its swarm's run: who it is and its secrets."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     format: Literal[1] = 1
     identity: str = Field(pattern=r"^[a-z][a-z0-9_-]{0,31}$")
@@ -147,7 +147,7 @@ class ProcessCredentials(BaseModel):
 class CredentialSet(BaseModel):
     """Every identity's credentials of one run (what `swarm up` or the compose init makes)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     swarm: str
     run_id: str

@@ -38,7 +38,7 @@ WHEELS = 4
 
 
 class _Fault(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     @property
     def kind(self) -> Literal["process", "network", "register"]:
@@ -297,7 +297,7 @@ def fault_subjects(fault: Fault) -> tuple[str, ...]:
 class ScheduledFault(BaseModel):
     """One entry of a scenario's `faults:` schedule: at simulation time `at_s`, inject `fault`."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     at_s: float = Field(ge=0.0)
     fault: Fault
 
@@ -323,7 +323,7 @@ class RunEvent(BaseModel):
     and `robot_up` name the robot in `subject`; `leader_change` names the new leader in `subject`
     and its term in `detail["term"]`; `world_resumed` gives the checkpoint's time."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     t_s: float
     kind: EventKind
     subject: str | None = None

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 class MetricsConfig(BaseModel):
     """Windows and distances that define the summary figures."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     steady_state_start_s: float = Field(default=20.0, ge=0.0)
     fitness_window_start_s: float = Field(default=0.0, ge=0.0)

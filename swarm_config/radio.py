@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 class BurstLoss(BaseModel):
     """Gilbert-Elliott two-state loss: per-frame transition and per-state loss probabilities."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     good_to_bad: float = Field(ge=0.0, le=1.0)
     bad_to_good: float = Field(gt=0.0, le=1.0)
     loss_in_good: float = Field(default=0.0, ge=0.0, le=1.0)
@@ -28,7 +28,7 @@ class BurstLoss(BaseModel):
 class LinkProfile(BaseModel):
     """How the radio medium treats every link."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     latency_ms: float = Field(default=0.0, ge=0.0, le=10_000.0)
     jitter_ms: float = Field(default=0.0, ge=0.0, le=10_000.0)
     loss: float = Field(default=0.0, ge=0.0, le=1.0)

@@ -56,7 +56,10 @@ FloatArray = NDArray[np.float64]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Every scenario model: unknown keys refused, and no NaN or infinity (`.nan`, `.inf` in
+    YAML) in any number, which would run the whole simulation on NaN without a word."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class CircleSpec(_Strict):
@@ -218,6 +221,12 @@ class Scenario(_Strict):
                 gap = math.hypot(a.x_m - obstacle.position_m[0], a.y_m - obstacle.position_m[1])
                 if gap < radius + obstacle.radius_m:
                     raise ValueError(f"robot {names[i]} starts inside obstacle {k}")
+        control_rate_hz = 1.0 / self.controller.control_period_s
+        if self.radio.broadcast_rate_hz > control_rate_hz:
+            raise ValueError(
+                f"radio.broadcast_rate_hz ({self.radio.broadcast_rate_hz:g}) is above the control "
+                f"rate ({control_rate_hz:g} Hz): a robot broadcasts at most once per control period"
+            )
         ticks = self.duration_s / self.controller.control_period_s
         if ticks > 10_000_000:
             raise ValueError("duration_s / control_period_s is over ten million ticks")

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 class SonarParams(BaseModel):
     """The ultrasound ring (the paper's sonar IPs): cone, range limits, noise, update rate."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     beam_half_width_rad: float = Field(default=float(np.deg2rad(15.0)), gt=0.0, lt=np.pi)
     min_range_m: float = Field(default=0.02, ge=0.0)
@@ -24,7 +24,7 @@ class SonarParams(BaseModel):
 class PositioningParams(BaseModel):
     """The indoor positioning receiver: fix noise and rate (DESIGN.md §4)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     position_noise_std_m: float = Field(default=0.001, ge=0.0)
     heading_noise_std_rad: float = Field(default=0.002, ge=0.0)

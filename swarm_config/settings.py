@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Self
 
 import yaml
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 
 def describe_validation_error(
@@ -89,7 +89,11 @@ def read_yaml_mapping(path: Path, what: str) -> dict[str, Any]:
 
 class LayeredSettings(BaseModel):
     """Base of a process's settings.  Subclasses name their environment variables in `ENV`
-    (field -> variable) and may parse a variable's text in `ENV_PARSERS`."""
+    (field -> variable) and may parse a variable's text in `ENV_PARSERS`.  No float setting
+    takes NaN or infinity (`--duration inf` is refused, naming the field); subclasses' own
+    `model_config` adds to this one."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
 
     ENV: ClassVar[Mapping[str, str]] = {}
     ENV_ALIASES: ClassVar[Mapping[str, str]] = {}

@@ -85,7 +85,7 @@ PositiveVector3 = tuple[PositiveFloat, PositiveFloat, PositiveFloat]
 class ControllerParams(BaseModel):
     """Constants of the robot's control software (the firmware's configuration)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     control_period_s: PositiveFloat = 0.01
     wheel_base_m: PositiveFloat = 0.25

@@ -18,7 +18,7 @@ from robot_firmware.control.fuzzy import MAX_SETS, FuzzyRuleBase
 
 
 class FuzzyParameters(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     error_centres: list[float] = Field(min_length=2, max_length=MAX_SETS)
     rate_centres: list[float] = Field(min_length=2, max_length=MAX_SETS)

@@ -53,7 +53,7 @@ from robot_firmware.fpga.watchdog import Watchdog
 class FabricConfig(BaseModel):
     """Build-time options of the FPGA image."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     n_sonar: int = Field(default=DEFAULT_N_SONAR, ge=1, le=MAX_SONAR)
 

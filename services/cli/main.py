@@ -68,7 +68,7 @@ MAX_SPEED_HELP = (
 
 def _cmd_sim(args: argparse.Namespace) -> int:
     from services.sim.run import simulate_scenario
-    from swarm_config.scenario import load_scenario
+    from swarm_config.scenario import load_scenario, parse_scenario
 
     scenario = load_scenario(Path(args.scenario))
     updates: dict[str, object] = {}
@@ -77,7 +77,13 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     if args.duration is not None:
         updates["duration_s"] = args.duration
     if updates:
-        scenario = scenario.model_validate({**scenario.model_dump(), **updates})
+        # A bad --seed or --duration is named like a bad field of the file (ScenarioError).
+        given = " and ".join(
+            f"--{name}" for name in ("seed", "duration") if getattr(args, name) is not None
+        )
+        scenario = parse_scenario(
+            {**scenario.model_dump(), **updates}, f"{args.scenario} with {given}"
+        )
     out_dir = Path(args.out)
     outputs = simulate_scenario(
         scenario, out_dir, compare=not args.no_compare, figures=not args.no_figures

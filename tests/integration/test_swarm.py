@@ -144,6 +144,15 @@ def test_max_speed_without_lockstep_is_a_usage_error(tmp_path: Path) -> None:
     assert not (tmp_path / "up").exists()
 
 
+def test_a_duration_that_never_ends_is_a_usage_error(tmp_path: Path) -> None:
+    for value in ("inf", "nan", "1e400"):
+        refused = swarm_cli("up", "--out", str(tmp_path / "up"), "--duration", value)
+        assert refused.returncode == 2, refused.stderr
+        assert "duration_s: Input should be a finite number" in refused.stderr
+        assert "Traceback" not in refused.stderr
+    assert not (tmp_path / "up").exists()  # nothing started
+
+
 def test_real_time_swarm_reports_loop_timing_consistent_with_its_length(tmp_path: Path) -> None:
     # How many deadlines a loaded host misses is bench/swarm_runtime.py's figure; here the
     # counters must be there and agree with each other and with the length of the run.

@@ -123,6 +123,24 @@ def test_bad_scenario_exits_2_naming_the_field_without_traceback(tmp_path: Path)
     assert missing.returncode == 2 and "cannot read" in missing.stderr
 
 
+@pytest.mark.parametrize(
+    ("flags", "named"),
+    [
+        (("--duration", "-5"), "duration_s: Input should be greater than 0"),
+        (("--duration", "inf"), "duration_s: Input should be a finite number"),
+        (("--duration", "nan"), "duration_s: Input should be a finite number"),
+        (("--seed", "-1", "--duration", "1"), "seed: Input should be greater than or equal to 0"),
+    ],
+)
+def test_bad_command_line_values_exit_2_naming_the_field(
+    tmp_path: Path, flags: tuple[str, ...], named: str
+) -> None:
+    result = _swarm("sim", "--scenario", str(PAPER), "--out", str(tmp_path / "out"), *flags)
+    assert result.returncode == 2, result.stderr
+    assert named in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_help_lists_the_sim_command() -> None:
     result = _swarm("--help")
     assert result.returncode == 0

@@ -36,6 +36,8 @@ def test_paper_scenario_is_the_papers_experiment() -> None:
         (("sensors", "sonar", "noise_std_m"), "loud", "sensors.sonar.noise_std_m"),
         (("duration_s",), 0, "duration_s"),
         (("robot_body", "wheel_radius"), 0.05, "robot_body.wheel_radius"),
+        (("radio", "broadcast_rate_hz"), 1e300, "radio.broadcast_rate_hz (1e+300) is above"),
+        (("radio", "broadcast_rate_hz"), 100.5, "above the control rate (100 Hz)"),
     ],
 )
 def test_bad_field_is_named_in_the_error(path: tuple, value: object, expected: str) -> None:
