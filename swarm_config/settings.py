@@ -8,6 +8,8 @@ come from the environment, its variable.
 
 from __future__ import annotations
 
+import argparse
+import math
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -30,6 +32,29 @@ def describe_validation_error(
         message = item["msg"].removeprefix("Value error, ")
         lines.append(f"  {where}{hint}: {message}")
     return "\n".join(lines)
+
+
+def tcp_port(text: str) -> int:
+    """A command line's TCP port (1-65535), for argparse's `type=`: anything else is a usage
+    error naming the value, before a process is started that would fail to listen on it."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (1-65535)")
+    return port
+
+
+def positive_seconds(text: str) -> float:
+    """A command line's time-out in seconds, for argparse's `type=`: a finite number above 0."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0.0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds above 0")
+    return seconds
 
 
 class SettingsError(ValueError):

@@ -110,6 +110,20 @@ def _reply(handlers: Mapping[str, Handler], verb: str, body: bytes) -> BaseModel
         )
 
 
+CONNECT_TIMEOUT_S = 5.0
+"""How long a one-off request waits for the router to let it in (a loaded machine can take a
+second or two; a swarm that is not running never does)."""
+
+
+class RouterUnreachableError(Exception):
+    """No router at the endpoint let a one-off client in: none runs there, or it refused the
+    client's credentials."""
+
+    def __init__(self, endpoint: str) -> None:
+        super().__init__(endpoint)
+        self.endpoint = endpoint
+
+
 def ask(
     swarm: str,
     endpoint: str,
@@ -118,13 +132,23 @@ def ask(
     body: BaseModel | bytes | None = None,
     timeout_s: float = 3.0,
     credentials: ProcessCredentials | None = None,
+    connect_timeout_s: float = CONNECT_TIMEOUT_S,
 ) -> bytes | None:
     """Send one admin request to a running swarm; the reply's payload, or None when nobody
     answered.  body: a request model, raw bytes (e.g. a parameter file), or None;
-    credentials: the operator's (else those of $SWARM_CREDENTIALS_FILE)."""
+    credentials: the operator's (else those of $SWARM_CREDENTIALS_FILE).
+
+    Raises RouterUnreachableError when no router at `endpoint` let the client in within
+    `connect_timeout_s` (none is running there, or it refused the credentials)."""
     keys = SwarmKeys(swarm)
     payload = body.model_dump_json().encode() if isinstance(body, BaseModel) else body
-    with open_client([endpoint], credentials=credentials) as session:
+    try:
+        session = open_client(
+            [endpoint], credentials=credentials, connect_timeout_s=connect_timeout_s
+        )
+    except zenoh.ZError:
+        raise RouterUnreachableError(endpoint) from None
+    with session:
         replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
         for reply in replies:
             if reply.ok is not None:
@@ -143,9 +167,12 @@ def admin_request(
     credentials: ProcessCredentials | None = None,
 ) -> R | AdminError | None:
     """Ask a running swarm's process one admin question: the reply as `reply_type`, an
-    `AdminError` when the process refused, or None when nobody answered (or the answer fits
-    neither)."""
-    payload = ask(swarm, endpoint, target, verb, body, timeout_s, credentials)
+    `AdminError` when the process refused, or None when nobody answered (no router let the
+    client in, or the answer fits neither)."""
+    try:
+        payload = ask(swarm, endpoint, target, verb, body, timeout_s, credentials)
+    except RouterUnreachableError:
+        return None
     return None if payload is None else parse_reply(reply_type, payload)
 
 

@@ -46,12 +46,19 @@ def client_config(
     config_file: Path | None = None,
     credentials: ProcessCredentials | None = None,
     tls_root_ca: Path | None = None,
+    connect_timeout_s: float | None = None,
 ) -> zenoh.Config:
     """A client's config; with `credentials`, it logs in as their identity; with
-    `tls_root_ca`, it trusts the router certificates that CA signed on `tls/` links."""
+    `tls_root_ca`, it trusts the router certificates that CA signed on `tls/` links; with
+    `connect_timeout_s`, opening the session fails (zenoh.ZError) when no router let it in
+    within that time, instead of waiting for one as the swarm's processes do."""
     config = _load(config_file, "client.json5")
     config.insert_json5("mode", json.dumps("client"))
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if connect_timeout_s is not None:
+        config.insert_json5(
+            "connect/timeout_ms", json.dumps(max(1, round(connect_timeout_s * 1e3)))
+        )
     if credentials is not None:
         login = {"user": credentials.identity, "password": credentials.password.get_secret_value()}
         config.insert_json5("transport/auth/usrpwd", json.dumps(login))
@@ -83,14 +90,16 @@ def open_client(
     config_file: Path | None = None,
     credentials: ProcessCredentials | None = None,
     tls_root_ca: Path | None = None,
+    connect_timeout_s: float | None = None,
 ) -> zenoh.Session:
     """A client session logged in with `credentials` (else those of $SWARM_CREDENTIALS_FILE,
     else none), trusting `tls_root_ca` (else $SWARM_TLS_ROOT_CA) on `tls/` links; with the
-    default config it waits for the router to come up."""
+    default config it waits for the router to come up, with `connect_timeout_s` at most that
+    long (then zenoh.ZError: no router there, or it refused the login)."""
     zenoh.init_log_from_env_or("error")
     login = credentials if credentials is not None else credentials_from_environment()
     ca = tls_root_ca if tls_root_ca is not None else root_ca_from_environment()
-    config = client_config(connect, config_file, login, ca)
+    config = client_config(connect, config_file, login, ca, connect_timeout_s)
     tls_roots = ("root_ca_certificate", "root_ca_certificate_base64")
     no_ca = all(config.get_json(f"transport/link/tls/{key}") == "null" for key in tls_roots)
     if no_ca and any(endpoint.startswith("tls/") for endpoint in connect):

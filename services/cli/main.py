@@ -35,6 +35,8 @@ from swarm_config.settings import (
     LayeredSettings,
     ScenarioError,
     SettingsError,
+    positive_seconds,
+    tcp_port,
 )
 from swarm_config.tls import (
     DEFAULT_TLS_HOSTS,
@@ -297,7 +299,7 @@ def _check_across_hosts(args: argparse.Namespace) -> None:
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
-    from services.launcher.launcher import Launcher, LaunchPlan
+    from services.launcher.launcher import Launcher, LaunchError, LaunchPlan
     from swarm_config.scenario import load_scenario
     from world.runtime import WorldConfig
 
@@ -400,7 +402,11 @@ def _cmd_up(args: argparse.Namespace) -> int:
         )
 
     started_s = time.monotonic()
-    code = launcher.up(on_ready=ready)
+    try:
+        code = launcher.up(on_ready=ready)
+    except LaunchError as exc:
+        print(f"swarm up: {exc}", file=sys.stderr)
+        return 1
     wall_s = time.monotonic() - started_s
     if not plan.runs_world:
         print(f"stopped {', '.join(plan.started_robots)} after {wall_s:.1f} s of wall time")
@@ -471,14 +477,29 @@ def _no_answer(args: argparse.Namespace, target: str) -> UsageError:
 
 
 def _ask_if_answered(
-    args: argparse.Namespace, target: str, verb: str, body: BaseModel | bytes | None
+    args: argparse.Namespace,
+    target: str,
+    verb: str,
+    body: BaseModel | bytes | None,
+    router_may_be_down: bool = False,
 ) -> bytes | None:
-    """The reply's payload, or None when nobody answered within --timeout."""
-    from robot_firmware.net.admin import ask
+    """The reply's payload, or None when nobody answered within --timeout (or, when
+    `router_may_be_down`, no router let this command in: it is restarting)."""
+    from robot_firmware.net.admin import CONNECT_TIMEOUT_S, RouterUnreachableError, ask
 
     endpoint = _endpoints(args.connect)[0]
     credentials = _operator_credentials(args.credentials)
-    return ask(_swarm(args), endpoint, target, verb, body, args.timeout, credentials)
+    try:
+        return ask(_swarm(args), endpoint, target, verb, body, args.timeout, credentials)
+    except RouterUnreachableError:
+        if router_may_be_down:
+            return None
+        raise UsageError(
+            f"no router at {endpoint} let the {credentials.identity} in within "
+            f"{CONNECT_TIMEOUT_S:g} s: "
+            "no swarm runs there (start one with `swarm up`), or it is another run's "
+            "(give that run's operator credentials with --credentials)"
+        ) from None
 
 
 def _print_reply(payload: bytes) -> int:
@@ -511,7 +532,7 @@ def _print_world_line(args: argparse.Namespace) -> None:
     quick = argparse.Namespace(
         **{**vars(args), "timeout": min(args.timeout, WORLD_STATUS_TIMEOUT_S)}
     )
-    payload = _ask_if_answered(quick, "world", "status", None)
+    payload = _ask_if_answered(quick, "world", "status", None, True)
     reply = None if payload is None else parse_reply(WorldStatusReply, payload)
     if not isinstance(reply, WorldStatusReply):
         print(f"world: no answer within {quick.timeout:g} s", file=sys.stderr)
@@ -581,7 +602,7 @@ def _cmd_fault(args: argparse.Namespace) -> int:
         )
         # The launcher answers again once it has reconnected to the new router.
         deadline_s = time.monotonic() + ROUTER_BACK_WITHIN_S
-        while (status := _ask_if_answered(args, "launcher", "status", None)) is None:
+        while (status := _ask_if_answered(args, "launcher", "status", None, True)) is None:
             if time.monotonic() > deadline_s:
                 raise _no_answer(args, "launcher")
             time.sleep(0.5)
@@ -761,7 +782,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         credentials_option(p, f", else {DEFAULT_OPERATOR_CREDENTIALS} when it exists")
         p.add_argument(
             "--timeout",
-            type=float,
+            type=positive_seconds,
             default=3.0,
             metavar="S",
             help="seconds to wait for the answer (default: 3)",
@@ -803,10 +824,10 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     up.add_argument("--max-speed", type=float, metavar="X", help=MAX_SPEED_HELP)
     up.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     up.add_argument(
-        "--web-port", type=int, default=9090, help="dashboard web viewer port (default: 9090)"
+        "--web-port", type=tcp_port, default=9090, help="dashboard web viewer port (default: 9090)"
     )
     up.add_argument(
-        "--grpc-port", type=int, default=9876, help="dashboard gRPC data port (default: 9876)"
+        "--grpc-port", type=tcp_port, default=9876, help="dashboard gRPC data port (default: 9876)"
     )
     up.add_argument(
         "--out",
@@ -818,7 +839,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     up.add_argument(
         "--swarm", help="swarm name, the first chunk of every key (default: $SWARM_NAME, else lab)"
     )
-    up.add_argument("--port", type=int, default=7447, help="router TCP port on 127.0.0.1")
+    up.add_argument("--port", type=tcp_port, default=7447, help="router TCP port on 127.0.0.1")
     up.add_argument(
         "--tls",
         action="store_true",

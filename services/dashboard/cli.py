@@ -21,7 +21,7 @@ from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
 )
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
-from swarm_config.settings import SettingsError
+from swarm_config.settings import SettingsError, tcp_port
 
 EXIT_USAGE = 2
 DEFAULT_SCENARIO = str(DEFAULT_SCENARIO_PATH)
@@ -133,13 +133,13 @@ def _viewer_options(parser: argparse.ArgumentParser, with_defaults: bool = True)
 
     parser.add_argument(
         "--web-port",
-        type=int,
+        type=tcp_port,
         default=default(DEFAULT_WEB_PORT),
         help=f"HTTP port of the web viewer (default: {DEFAULT_WEB_PORT})",
     )
     parser.add_argument(
         "--grpc-port",
-        type=int,
+        type=tcp_port,
         default=default(DEFAULT_GRPC_PORT),
         help=f"port of the gRPC server the viewer reads from (default: {DEFAULT_GRPC_PORT})",
     )

@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import IO
 from urllib.parse import quote
 
+import zenoh
 from pydantic import ValidationError
 
 from robot_firmware.control.kernels import KERNELS_ENV
@@ -106,6 +107,15 @@ WORLD_QUICK_DEATH_S = 5.0
 """A world that dies sooner than this after its start counts as a quick death."""
 WORLD_MAX_QUICK_DEATHS = 5
 """This many quick deaths in a row end the run (a world that cannot start)."""
+
+
+ROUTER_START_POLL_S = 1.0
+"""While the router comes up, the launcher tries to connect for this long at a time, and in
+between looks whether the router is still running and whether a stop was asked."""
+
+
+class LaunchError(Exception):
+    """`swarm up` could not bring the swarm up; the message says why and where to look."""
 
 
 @dataclass
@@ -448,12 +458,44 @@ class Launcher:
     def _serve(self) -> None:
         self._admin.serve(self.admin_handlers())
 
-    def up(self, on_ready: Callable[[], None] | None = None) -> int:
-        """Start everything and supervise until the world ends or a stop is asked."""
-        self.start("router")
+    def _launcher_session(self) -> zenoh.Session | None:
+        """The launcher's own session, once the router it started lets it in; None when the
+        router exited first (it could not listen: the port taken, a bad endpoint) or a stop
+        was asked meanwhile (Ctrl-C works while the router comes up)."""
         launcher = self.credentials.for_identity(LAUNCHER)
         ca = self.tls.ca_certificate if self.tls is not None else None
-        with open_client([self.plan.endpoint], credentials=launcher, tls_root_ca=ca) as session:
+        while not self.stop.is_set():
+            try:
+                return open_client(
+                    [self.plan.endpoint],
+                    credentials=launcher,
+                    tls_root_ca=ca,
+                    connect_timeout_s=ROUTER_START_POLL_S,
+                )
+            except zenoh.ZError:
+                if not self.children["router"].running:
+                    return None
+        return None
+
+    def up(self, on_ready: Callable[[], None] | None = None) -> int:
+        """Start everything and supervise until the world ends or a stop is asked.
+
+        Raises LaunchError, having stopped what it started, when the router exits before it
+        lets the launcher in."""
+        self.start("router")
+        opened = self._launcher_session()
+        if opened is None:
+            router = self.children["router"]
+            status = None if router.process is None else router.process.poll()
+            self.shutdown()
+            if self.stop.is_set():
+                return 0
+            raise LaunchError(
+                f"the router exited (status {status}) before it let the launcher in, so nothing "
+                f"else was started: see {router.log_path} (is {self.plan.endpoint} taken by "
+                "another program or swarm? `swarm up --port N` picks another port)"
+            )
+        with opened as session:
             session.declare_queryable(self.keys.admin("launcher", "*"), self._admin.on_query)
             token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
             if "world" in self.children:

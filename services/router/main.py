@@ -24,7 +24,13 @@ def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     config = router_config(listen, config_file)
-    with zenoh.open(config) as session:
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as exc:  # e.g. the port is taken: say so in one line, no traceback
+        where = ", ".join(listen) if listen else "the config endpoints"
+        log.error("cannot start the router on %s: %s", where, exc)
+        return 1
+    with session:
         log.info("router up, zid %s", session.info.zid())
         print(
             f"router listening on {', '.join(listen) if listen else 'the config endpoints'}",

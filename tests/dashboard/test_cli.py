@@ -76,9 +76,24 @@ def test_port_in_use_is_a_usage_error(
     assert f"port {port} is in use" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("command", ["dashboard", "replay"])
+def test_a_port_outside_1_to_65535_is_a_usage_error_naming_the_flag(
+    command: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    recording = tmp_path / "run.rrd"
+    recording.write_bytes(b"")
+    given = [str(recording)] if command == "replay" else []
+    for option in ("--web-port", "--grpc-port"):
+        with pytest.raises(SystemExit) as refused:
+            _parser().parse_args([command, *given, option, "70000"])
+        assert refused.value.code == 2
+        err = capsys.readouterr().err
+        assert f"argument {option}: '70000' is not a TCP port (1-65535)" in err, err
+
+
 @pytest.mark.parametrize(
     ("option", "value", "problem"),
-    [("--web-port", "70000", "web_port"), ("--swarm", "Bad Name", "swarm name")],
+    [("--swarm", "Bad Name", "swarm name")],
 )
 def test_bad_settings_are_usage_errors_naming_the_field(
     option: str,

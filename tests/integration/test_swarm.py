@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -27,7 +28,7 @@ import zenoh
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
 from swarm_config.scenario import load_scenario
-from tests.integration.conftest import PAPER, LiveSwarm, run_swarm, swarm_cli
+from tests.integration.conftest import PAPER, LiveSwarm, free_port, run_swarm, swarm_cli
 
 pytestmark = pytest.mark.slow
 
@@ -151,6 +152,55 @@ def test_a_duration_that_never_ends_is_a_usage_error(tmp_path: Path) -> None:
         assert "duration_s: Input should be a finite number" in refused.stderr
         assert "Traceback" not in refused.stderr
     assert not (tmp_path / "up").exists()  # nothing started
+
+
+def test_a_port_outside_1_to_65535_is_a_usage_error(tmp_path: Path) -> None:
+    # Before, `swarm up --port -1` started every process and the router died on its port.
+    for command in (
+        ("up", "--out", str(tmp_path / "up"), "--port", "-1"),
+        ("up", "--out", str(tmp_path / "up"), "--port", "0"),
+        ("up", "--out", str(tmp_path / "up"), "--web-port", "70000"),
+        ("dashboard", "--grpc-port", "99999"),
+        ("replay", str(tmp_path / "none.rrd"), "--web-port", "x"),
+    ):
+        refused = swarm_cli(*command)
+        assert refused.returncode == 2, (command, refused.stderr)
+        assert "is not a TCP port (1-65535)" in refused.stderr, refused.stderr
+    assert not (tmp_path / "up").exists()
+
+
+def test_commands_without_a_swarm_say_so_instead_of_waiting(tmp_path: Path) -> None:
+    # Before, `swarm status` with no swarm running waited for a router forever.
+    credentials = tmp_path / "credentials"
+    made = swarm_cli("credentials", str(credentials), "--scenario", str(PAPER))
+    assert made.returncode == 0, made.stderr
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    operator = str(credentials / "operator.json")
+    for command in (("status",), ("kill", "robot3"), ("regs", "robot1", "0xFF200010")):
+        started = time.monotonic()
+        refused = swarm_cli(
+            *command, "--connect", endpoint, "--credentials", operator, "--timeout", "1", timeout=30
+        )
+        assert refused.returncode == 2, (command, refused.stderr)
+        assert f"no router at {endpoint} let the operator in within 5 s" in refused.stderr
+        assert "Traceback" not in refused.stderr
+        assert time.monotonic() - started < 25  # generous: a loaded machine starts Python slowly
+
+
+def test_swarm_up_on_a_taken_port_says_so_and_starts_nothing_else(tmp_path: Path) -> None:
+    # Before, the launcher waited forever for a router that had died, deaf to Ctrl-C.
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        out = tmp_path / "up"
+        refused = swarm_cli("up", "--no-dashboard", "--out", str(out), "--port", str(port))
+    assert refused.returncode == 1, refused.stderr
+    assert f"is tcp/127.0.0.1:{port} taken by another program or swarm?" in refused.stderr
+    assert "Traceback" not in refused.stderr
+    router_log = (out / "logs" / "router.log").read_text()
+    assert "cannot start the router" in router_log and "Traceback" not in router_log
+    assert sorted(p.name for p in (out / "logs").iterdir()) == ["router.log"]
 
 
 def test_real_time_swarm_reports_loop_timing_consistent_with_its_length(tmp_path: Path) -> None:

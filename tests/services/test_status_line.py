@@ -31,9 +31,12 @@ def test_the_status_line_shows_the_worlds_real_time_factor(
     assert status.real_time_factor is not None and status.real_time_factor < 0.51
     asked: list[float] = []
 
-    def answer(args: argparse.Namespace, target: str, verb: str, body: object) -> bytes:
+    def answer(
+        args: argparse.Namespace, target: str, verb: str, body: object, router_may_be_down: bool
+    ) -> bytes:
         asked.append(args.timeout)
         assert (target, verb) == ("world", "status")
+        assert router_may_be_down  # the launcher has answered; a router restarting is no error
         return status.to_json_bytes()
 
     monkeypatch.setattr(cli, "_ask_if_answered", answer)
