@@ -83,6 +83,17 @@ class LiveSwarm:
             return {}
         return json.loads(result.stdout)
 
+    def all_running(self) -> dict:
+        """The launcher's status once it has every process of the swarm running."""
+        return self.wait_for(
+            lambda: (
+                (s := self.admin("status")).get("ok")
+                and all(p["running"] for p in s["processes"].values())
+                and s
+            ),
+            describe="every process running",
+        )
+
     def wait_for(
         self,
         predicate: Callable[[], T | None],

@@ -54,13 +54,7 @@ def test_frozen_follower_is_seen_gone_and_comes_back_without_a_restart(
     live_swarm: LiveSwarm,
 ) -> None:
     live = live_swarm
-    status = live.wait_for(
-        lambda: (
-            (s := live.admin("status")).get("ok")
-            and all(p["running"] for p in s["processes"].values())
-            and s
-        )
-    )
+    status = live.all_running()
     live.wait_for(lambda: len(_world(live).get("live", ())) == len(ROBOTS))
     live.wait_for(
         lambda: (w := _world(live)) and w["position_errors_m"][FROZEN] < FORMATION_BOUND_M,

@@ -113,13 +113,7 @@ def _replies(session: zenoh.Session, key: str, payload: bytes | None = None) -> 
 @pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "2")], indirect=True)
 def test_no_identity_but_the_operator_can_read_steer_jam_or_kill(live_swarm: LiveSwarm) -> None:
     live = live_swarm
-    status = live.wait_for(
-        lambda: (
-            (s := live.admin("status")).get("ok")
-            and all(p["running"] for p in s["processes"].values())
-            and s
-        )
-    )
+    status = live.all_running()
     pids_before = {name: p["pid"] for name, p in status["processes"].items()}
     live.wait_for(lambda: live.admin("net", "get").get("ok"))
     profile_before = live.admin("net", "get")["profile"]
@@ -263,13 +257,7 @@ def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_anot
     reaches and samples naming robot3 as the leader of a term far ahead.  The world must stay
     up (same process), count each sample as malformed, and keep robot1 as the leader."""
     live = live_swarm
-    status = live.wait_for(
-        lambda: (
-            (s := live.admin("status")).get("ok")
-            and all(p["running"] for p in s["processes"].values())
-            and s
-        )
-    )
+    status = live.all_running()
     world_pid = status["processes"]["world"]["pid"]
     live.wait_for(lambda: (live.out / "summary.json").exists(), 60)
     robot2 = _open(live, _credentials(live, "robot2"))

@@ -237,13 +237,7 @@ def test_lossy_radio_keeps_the_formation_within_six_centimetres(tmp_path: Path) 
 
 
 def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
-    status = live_swarm.wait_for(
-        lambda: (
-            (s := live_swarm.admin("status"))["ok"]
-            and all(p["running"] for p in s["processes"].values())
-            and s
-        )
-    )
+    status = live_swarm.all_running()
     assert set(status["processes"]) == {"router", "world", "robot1", "robot2", "robot3"}
     # A running process may still be importing; a robot answers once it is up (and the world
     # counts it live from then on).
