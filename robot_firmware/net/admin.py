@@ -116,12 +116,8 @@ second or two; a swarm that is not running never does)."""
 
 
 class RouterUnreachableError(Exception):
-    """No router at the endpoint let a one-off client in: none runs there, or it refused the
-    client's credentials."""
-
-    def __init__(self, endpoint: str) -> None:
-        super().__init__(endpoint)
-        self.endpoint = endpoint
+    """No router at the endpoint (the message) let a one-off client in: none runs there, or it
+    refused the client's credentials."""
 
 
 def ask(

@@ -12,7 +12,13 @@ import pytest
 from robot_firmware.control import kernels
 from robot_firmware.control.controller import control_robots
 
-pytestmark = pytest.mark.skipif(kernels.MODE != "jit", reason="numba's JIT is not in use")
+pytestmark = [
+    pytest.mark.skipif(kernels.MODE != "jit", reason="numba's JIT is not in use"),
+    pytest.mark.skipif(
+        getattr(kernels, "NO_RUNTIME_OPTION", None) is None,
+        reason="this numba has no per-function memory runtime option",
+    ),
+]
 
 
 @pytest.fixture
@@ -24,17 +30,12 @@ def kernels_declared_here() -> Iterator[None]:
 
 
 def test_control_robots_is_compiled_without_the_memory_runtime() -> None:
-    if kernels.NO_RUNTIME_OPTION is None:
-        pytest.skip("this numba has no per-function memory runtime option")
     assert control_robots.targetoptions[kernels.NO_RUNTIME_OPTION] is False
 
 
 def test_a_kernel_marked_as_not_allocating_does_not_compile_if_it_allocates(
     kernels_declared_here: None,
 ) -> None:
-    if kernels.NO_RUNTIME_OPTION is None:
-        pytest.skip("this numba has no per-function memory runtime option")
-
     @kernels.njit(allocates=False)
     def sum_of_a_copy(rows, i):  # type: ignore[no-untyped-def]
         return rows[i].copy().sum()
