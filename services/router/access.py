@@ -70,6 +70,20 @@ gone, its robots' tokens with it, after about a second.
 | one host    | `router` (user name)                 | nothing (no second router)           |
 | the hub     | `router` (user name)                 | what the robots may do, both flows   |
 | another host| `hub` (the router certificate's CN)  | anything under `swarm/<swarm>/**`    |
+
+**Sizes.**  An identity that may put on a key may put anything there, of any size: a robot
+could hand the world, the dashboard and the router a 50 MB "telemetry sample" to take in.
+The router drops what no process of the swarm ever sends, with Zenoh's own limits, before
+routing it (so no subscriber sees it and nobody counts it):
+
+* `transport/link/rx/max_message_size` (`MESSAGE_BYTES_MAX`, 1 MiB): a message bigger than
+  that is dropped while it arrives, fragment by fragment, so the router never holds it whole;
+  the largest message a run sends is a robot's register dump (about 15 KB);
+* `low_pass_filter` on the keys the robots put on (`robot_put_limits`, ingress): act pins
+  and radio frames at most 1 KiB (they are 44 and 100 bytes), telemetry at most 64 KiB (a
+  sample is about 2 KB, and nothing in it grows with the swarm).
+
+A message at a limit passes; one byte over does not (tests/integration/test_security.py).
 """
 
 from __future__ import annotations
@@ -114,6 +128,13 @@ EVERY_MESSAGE = (
     "declare_liveliness_subscriber",
     "liveliness_query",
 )
+
+MESSAGE_BYTES_MAX = 1 << 20
+"""The largest message the router takes off any link (module docstring, "Sizes")."""
+ACT_AND_FRAME_BYTES_MAX = 1 << 10
+"""The largest act message or radio frame a robot may put (they are 44 and 100 bytes)."""
+TELEMETRY_BYTES_MAX = 64 << 10
+"""The largest telemetry sample a robot may put (a sample is about 2 KB)."""
 
 Flow = Literal["ingress", "egress"]
 
@@ -264,6 +285,26 @@ def access_control(
     }
 
 
+def robot_put_limits(swarm: str) -> list[dict[str, Any]]:
+    """The `low_pass_filter` section: the size limit of each key the robots put on, applied
+    where the message enters the router (module docstring, "Sizes")."""
+    keys = SwarmKeys(swarm)
+    limits = {
+        "robot-act-and-frames": ([keys.act_all, keys.radio_tx_all], ACT_AND_FRAME_BYTES_MAX),
+        "robot-telemetry": ([keys.telemetry_all], TELEMETRY_BYTES_MAX),
+    }
+    return [
+        {
+            "id": limit_id,
+            "flows": ["ingress"],
+            "messages": list(PUBLISH),
+            "key_exprs": key_exprs,
+            "size_limit": size_limit,
+        }
+        for limit_id, (key_exprs, size_limit) in limits.items()
+    ]
+
+
 def tls_link(tls: TlsFiles) -> dict[str, Any]:
     """The router's `transport/link/tls` section: its certificate and key for `tls/`
     listeners, the swarm's CA for links it opens itself. Clients show no certificate (no
@@ -404,13 +445,12 @@ def router_config_document(
             }
         }
     }
-    link: dict[str, Any] = {}
+    link: dict[str, Any] = {"rx": {"max_message_size": MESSAGE_BYTES_MAX}}
     if tls is not None:
         link["tls"] = tls_link(tls)
     if names is not None:
         link["tx"] = {"lease": ROUTER_LINK_LEASE_MS}
-    if link:
-        transport["link"] = link
+    transport["link"] = link
     document: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
@@ -426,6 +466,7 @@ def router_config_document(
         {
             "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
             "transport": transport,
+            "low_pass_filter": robot_put_limits(credentials.swarm),
             "access_control": access_control(
                 credentials.swarm,
                 credentials.robots,

@@ -31,6 +31,11 @@ from robot_firmware.net.frames import (
 )
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import client_config
+from services.router.access import (
+    ACT_AND_FRAME_BYTES_MAX,
+    MESSAGE_BYTES_MAX,
+    TELEMETRY_BYTES_MAX,
+)
 from swarm_config.credentials import ProcessCredentials, read_credentials
 from tests.integration.conftest import LiveSwarm
 
@@ -293,6 +298,61 @@ def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_anot
     assert "Traceback" not in (live.out / "logs" / "world.log").read_text()
     events = (live.out / "events.jsonl").read_text().splitlines()
     assert not [e for e in events if json.loads(e).get("kind") == "leader_change"], events
+
+
+def test_a_robot_cannot_put_messages_over_the_size_limits(live_swarm: LiveSwarm) -> None:
+    """robot2 puts, on its own act, radio and telemetry keys, a message at each key's limit,
+    one a byte over it and one over the router's link limit, each starting with a marker.
+    The operator's tap, subscribed to every key, must see exactly the three at their limits;
+    the world must count exactly those (as malformed: they are padding, not messages)."""
+    live = live_swarm
+    live.all_running()
+    live.wait_for(lambda: (live.out / "summary.json").exists(), 60)
+    before = json.loads((live.out / "summary.json").read_text())
+    operator = _open(live, _credentials(live, "operator"))
+    marker = MARKERS["robot2"]
+    seen: list[tuple[str, int]] = []
+    seen_lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:  # zenoh callback: record and return
+        data = sample.payload.to_bytes()
+        if data.startswith(marker):
+            with seen_lock:
+                seen.append((str(sample.key_expr), len(data)))
+
+    operator.declare_subscriber(KEYS.everything, on_sample)
+    robot2 = _open(live, _credentials(live, "robot2"))
+    time.sleep(1.0)
+    limits = {
+        KEYS.act("robot2"): ACT_AND_FRAME_BYTES_MAX,
+        KEYS.radio_tx("robot2"): ACT_AND_FRAME_BYTES_MAX,
+        KEYS.telemetry("robot2"): TELEMETRY_BYTES_MAX,
+    }
+    for key, limit in limits.items():
+        for size in (limit, limit + 1, MESSAGE_BYTES_MAX + 1, 8 * MESSAGE_BYTES_MAX):
+            robot2.put(key, marker + bytes(size - len(marker)))
+            time.sleep(0.2)
+    robot2.close()
+
+    def counted() -> dict | None:  # the summary is written every 5 s
+        summary = json.loads((live.out / "summary.json").read_text())
+        return summary if summary["malformed_acts"] > before["malformed_acts"] else None
+
+    live.wait_for(counted, 30, describe="the act at its limit counted as malformed")
+    time.sleep(6.0)  # one more summary: anything else that got through is counted by now
+    after = json.loads((live.out / "summary.json").read_text())
+    operator.close()
+    with seen_lock:
+        seen_sorted = sorted(seen)
+    print(
+        f"\nrobot2's puts at, over and far over the limits: the tap saw {seen_sorted}; the world "
+        f"counted {after['malformed_acts'] - before['malformed_acts']} malformed acts and "
+        f"{after['malformed_telemetry'] - before['malformed_telemetry']} malformed telemetry"
+    )
+    assert seen_sorted == sorted(limits.items())
+    assert after["malformed_acts"] - before["malformed_acts"] == 1
+    assert after["malformed_telemetry"] - before["malformed_telemetry"] == 1
+    assert "Traceback" not in (live.out / "logs" / "world.log").read_text()
 
 
 def _world_t_ns(operator: zenoh.Session) -> float | None:
