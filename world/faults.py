@@ -27,7 +27,10 @@ tested alone (tests/world/test_faults.py); world/runtime.py does the I/O:
   first tick boundary at or after t + `delay_ns`, and at each boundary the world waits for the
   samples it expects up to then (a robot publishes at a fixed period of its own simulated
   time), so what is applied at which tick does not depend on delivery: a leader change moves
-  the metrics at a deterministic tick.
+  the metrics at a deterministic tick.  A lockstep robot stamps its telemetry with the time of
+  the sense message it answers, so a sample stamped more than `max_ahead_ns` (a control
+  period) past the world's clock is one no robot sends: it is refused, since held until its
+  stamp it would hold back every later sample of that robot and the world's memory with it.
 * `FaultHub`: the world's admin verb `fault` and the campaign's injections.  It validates a
   fault (a malformed body: `invalid_request` / `not_json`; a name outside the swarm:
   `unknown_robot` / `unknown_process`; nothing changes), applies network faults itself,
@@ -346,19 +349,32 @@ class _Reporter(Generic[T]):
 class TelemetryGate(Generic[T]):
     """Which telemetry samples the world applies at a tick boundary (module docstring)."""
 
-    def __init__(self, names: Sequence[str], delay_ns: int, default_interval_ns: int) -> None:
+    def __init__(
+        self,
+        names: Sequence[str],
+        delay_ns: int,
+        default_interval_ns: int,
+        max_ahead_ns: int | None = None,
+    ) -> None:
+        """max_ahead_ns: how far past the world's clock a sample may be stamped (None: any)."""
         self.names = tuple(names)
         self.delay_ns = delay_ns
         self.default_interval_ns = default_interval_ns
+        self.max_ahead_ns = max_ahead_ns
         self._robots: dict[str, _Reporter[T]] = {name: _Reporter() for name in self.names}
 
-    def arrived(self, name: str, t_ns: int, sample: T) -> None:
+    def arrived(self, name: str, t_ns: int, sample: T, now_ns: int) -> bool:
+        """Take a sample stamped `t_ns` that arrived with the world's clock at `now_ns`; False
+        (nothing changes) for one stamped more than `max_ahead_ns` past it."""
+        if self.max_ahead_ns is not None and t_ns > now_ns + self.max_ahead_ns:
+            return False
         robot = self._robots[name]
         if robot.latest_ns is not None and t_ns > robot.latest_ns:
             robot.interval_ns = t_ns - robot.latest_ns
         robot.latest_ns = t_ns if robot.latest_ns is None else max(robot.latest_ns, t_ns)
         robot.silent = False
         robot.pending.append((t_ns, sample))
+        return True
 
     def joined(self, name: str, t_ns: int) -> None:
         robot = self._robots[name]

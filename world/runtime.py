@@ -365,6 +365,11 @@ class WorldProcess:
         self.act_counters = WireCounters()
         """Act messages applied, and refused per `WireDropReason`."""
         self.malformed_telemetry = 0
+        """Telemetry refused in the subscriber's callback (`_on_telemetry`)."""
+        self.telemetry_ahead = 0
+        """Lockstep telemetry stamped ahead of the world's clock, refused by the main loop
+        (`_take_telemetry`); reported within `malformed_telemetry`."""
+        self._warned_ahead: set[str] = set()
         self.unknown_senders = 0
         self.spoofed_frames = 0
         """Frames from robotN's transmitter that claim another sender id (dropped)."""
@@ -381,6 +386,7 @@ class WorldProcess:
             self.names,
             delay_ns=TELEMETRY_DELAY_PERIODS * self.period_ns if config.lockstep else 0,
             default_interval_ns=round(DEFAULT_TELEMETRY_INTERVAL_S * NS_PER_S),
+            max_ahead_ns=self.period_ns if config.lockstep else None,
         )
         """When each robot's telemetry is applied (module docstring)."""
         self.schedule = FaultSchedule(scenario.faults)
@@ -448,7 +454,7 @@ class WorldProcess:
             "counters": {
                 "acts_accepted": self.act_counters.accepted,
                 "acts_dropped": self.act_counters.dropped_as_dict(),
-                "malformed_telemetry": self.malformed_telemetry,
+                "malformed_telemetry": self.malformed_telemetry + self.telemetry_ahead,
                 "unknown_senders": self.unknown_senders,
                 "spoofed_frames": self.spoofed_frames,
             },
@@ -701,7 +707,18 @@ class WorldProcess:
                 telemetry = self._telemetry.get_nowait()
             except queue.Empty:
                 break
-            self.telemetry_gate.arrived(telemetry.robot, round(telemetry.t_s * NS_PER_S), telemetry)
+            t_ns = round(telemetry.t_s * NS_PER_S)
+            if not self.telemetry_gate.arrived(telemetry.robot, t_ns, telemetry, self.engine.t_ns):
+                self.telemetry_ahead += 1
+                if telemetry.robot not in self._warned_ahead:  # once per robot: not a flood
+                    self._warned_ahead.add(telemetry.robot)
+                    log.warning(
+                        "telemetry of %s stamped t = %.3f s, ahead of the lockstep clock "
+                        "(%.3f s): refused and counted in malformed_telemetry",
+                        telemetry.robot,
+                        telemetry.t_s,
+                        self.engine.t_s,
+                    )
         if not self.config.lockstep:
             self._apply_telemetry(None)
 
@@ -1208,7 +1225,7 @@ class WorldProcess:
             "act": self.act_counters.dropped_as_dict(),
             "sense": {name: self.sense_drops.get(name) for name in self.names},
         }
-        summary["malformed_telemetry"] = self.malformed_telemetry
+        summary["malformed_telemetry"] = self.malformed_telemetry + self.telemetry_ahead
         summary["world_resumes"] = list(self.resumes)
         summary["run_events"] = summarise_events(self.event_log.events)
         return summary

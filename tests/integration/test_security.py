@@ -255,12 +255,15 @@ def test_no_identity_but_the_operator_can_read_steer_jam_or_kill(live_swarm: Liv
     assert scratch_after == scratch_before
 
 
+@pytest.mark.parametrize("live_swarm", [("--lockstep", "--max-speed", "2")], indirect=True)
 def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_another(
     live_swarm: LiveSwarm,
 ) -> None:
-    """robot2 puts, on its own telemetry key (which the router lets it), stamps no run
-    reaches and samples naming robot3 as the leader of a term far ahead.  The world must stay
-    up (same process), count each sample as malformed, and keep robot1 as the leader."""
+    """In lockstep, robot2 puts, on its own telemetry key (which the router lets it), stamps
+    no run reaches, samples naming robot3 as the leader of a term far ahead, and samples naming
+    itself the leader of that term stamped 1000 s ahead of the world's clock (which, taken,
+    would wait in the world until then and hold back robot2's later samples).  The world must
+    stay up (same process), count each sample as malformed, and keep robot1 as the leader."""
     live = live_swarm
     status = live.all_running()
     world_pid = status["processes"]["world"]["pid"]
@@ -268,11 +271,13 @@ def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_anot
     robot2 = _open(live, _credentials(live, "robot2"))
     operator = _open(live, _credentials(live, "operator"))
     world_t_s = live.wait_for(lambda: _world_t_ns(operator)) / 1e9
+    ahead = {"robot": "robot2", "t_s": world_t_s + 1000.0, "role": "leader", "term": 999}
     lies = [
         b'{"robot": "robot2", "t_s": NaN}',
         b'{"robot": "robot2", "t_s": Infinity}',
         b'{"robot": "robot2", "t_s": 1e300}',
         json.dumps({"robot": "robot3", "t_s": world_t_s, "role": "leader", "term": 999}).encode(),
+        json.dumps(ahead).encode(),
     ]
     repeats = 5
     for _ in range(repeats):

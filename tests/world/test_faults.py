@@ -329,14 +329,14 @@ def test_lockstep_telemetry_is_applied_a_fixed_delay_after_its_stamp() -> None:
     gate: TelemetryGate[str] = TelemetryGate(
         ("a", "b"), delay_ns=20 * MS, default_interval_ns=50 * MS
     )
-    gate.arrived("b", 0, "b0")
-    gate.arrived("a", 0, "a0")
-    gate.arrived("a", 50 * MS, "a50")
+    gate.arrived("b", 0, "b0", now_ns=0)
+    gate.arrived("a", 0, "a0", now_ns=0)
+    gate.arrived("a", 50 * MS, "a50", now_ns=0)
     assert gate.release(10 * MS) == []
     assert gate.release(20 * MS) == [("a", "a0"), ("b", "b0")]
     assert gate.release(69 * MS) == []
     assert gate.release(70 * MS) == [("a", "a50")]
-    gate.arrived("b", 60 * MS, "b60")
+    gate.arrived("b", 60 * MS, "b60", now_ns=0)
     assert gate.release(None) == [("b", "b60")]
 
 
@@ -347,18 +347,37 @@ def test_a_boundary_waits_for_the_telemetry_each_live_robot_owes_by_its_own_peri
     gate.joined("a", 0)
     assert gate.waiting_for(10 * MS) == []
     assert gate.waiting_for(20 * MS) == ["a"]  # its first sample, at or after the join
-    gate.arrived("a", 10 * MS, "x")
+    gate.arrived("a", 10 * MS, "x", now_ns=0)
     assert gate.waiting_for(79 * MS) == []  # next due at 60 ms (default period)
     assert gate.waiting_for(80 * MS) == ["a"]
-    gate.arrived("a", 40 * MS, "y")  # its own period: 30 ms
+    gate.arrived("a", 40 * MS, "y", now_ns=0)  # its own period: 30 ms
     assert gate.waiting_for(89 * MS) == []
     assert gate.waiting_for(90 * MS) == ["a"]
     gate.give_up_on(["a"])
     assert gate.waiting_for(10**12) == []
-    gate.arrived("a", 70 * MS, "z")  # it speaks again: waited for again
+    gate.arrived("a", 70 * MS, "z", now_ns=0)  # it speaks again: waited for again
     assert gate.waiting_for(120 * MS) == ["a"]
     gate.left("a")
     assert gate.waiting_for(10**12) == []
+
+
+def test_a_sample_stamped_ahead_of_the_clock_is_refused_and_holds_nothing_back() -> None:
+    """With `max_ahead_ns`, a sample stamped past the world's clock by more than that is
+    refused (False, nothing changes); had it been taken, it would sit first in the robot's
+    queue until its stamp and hold back every later sample of the robot."""
+    gate: TelemetryGate[str] = TelemetryGate(
+        ("a", "b"), delay_ns=20 * MS, default_interval_ns=50 * MS, max_ahead_ns=10 * MS
+    )
+    gate.joined("a", 0)
+    assert gate.arrived("a", 0, "a0", now_ns=0)
+    assert gate.arrived("a", 10 * MS, "a10", now_ns=0)  # one period ahead: still taken
+    assert not gate.arrived("a", 10 * MS + 1, "lie", now_ns=0)
+    assert not gate.arrived("a", 10**18, "lie", now_ns=40 * MS)
+    assert gate.waiting_for(80 * MS) == ["a"]  # its next sample (due at 20 ms) still owed
+    assert gate.arrived("a", 40 * MS, "a40", now_ns=40 * MS)
+    assert gate.release(60 * MS) == [("a", "a0"), ("a", "a10"), ("a", "a40")]
+    unbounded: TelemetryGate[str] = TelemetryGate(("a",), delay_ns=0, default_interval_ns=MS)
+    assert unbounded.arrived("a", 10**18, "far", now_ns=0)  # real time: no bound
 
 
 # -- the hub ----------------------------------------------------------------------------------
