@@ -150,6 +150,7 @@ from world.faults import (
     NetworkFault,
     TelemetryGate,
 )
+from world.input_budget import PER_PERIOD, InputBudget
 from world.lockstep import LockstepBarrier, LockstepPacer, LockstepProfile
 from world.metrics import FormationLayout, reference_points, sample_errors
 from world.realtime_guard import LEAD_PERIODS, RealTimeGuard, SenseLateness
@@ -159,6 +160,8 @@ log = logging.getLogger("swarm.world")
 
 MAX_PHYSICS_STEP_NS = 10_000_000
 """Longest exact physics step; contacts are resolved at least this often."""
+INPUT_KINDS = {"act": "act messages", "frame": "radio frames", "telemetry": "telemetry samples"}
+"""The messages a robot puts on its own keys, each kind with its own budget."""
 ACTS_NEVER_WAKE = 1 << 30
 """A queue length no act count reaches: the real-time world's act threshold."""
 TELEMETRY_DELAY_PERIODS = 2
@@ -370,6 +373,9 @@ class WorldProcess:
         """Lockstep telemetry stamped ahead of the world's clock, refused by the main loop
         (`_take_telemetry`); reported within `malformed_telemetry`."""
         self._warned_ahead: set[str] = set()
+        self.budgets = {kind: InputBudget(self.names, self.period_ns) for kind in INPUT_KINDS}
+        """Per kind of message a robot puts: how many it may (world/input_budget.py)."""
+        self._warned_budget: set[tuple[str, str]] = set()
         self.unknown_senders = 0
         self.spoofed_frames = 0
         """Frames from robotN's transmitter that claim another sender id (dropped)."""
@@ -457,6 +463,7 @@ class WorldProcess:
                 "malformed_telemetry": self.malformed_telemetry + self.telemetry_ahead,
                 "unknown_senders": self.unknown_senders,
                 "spoofed_frames": self.spoofed_frames,
+                "over_budget": self.over_budget(),
             },
         }
 
@@ -470,6 +477,12 @@ class WorldProcess:
                 int(counters[k])
                 for k in ("acts_accepted", "malformed_telemetry", "unknown_senders")
             ] + [int(counters["spoofed_frames"]), int(state["next_sense_ns"])]
+            # A checkpoint from before the input budgets: nothing dropped over them.
+            over_budget = {
+                kind: {name: int(counts.get(name, 0)) for name in self.names}
+                for kind, counts in counters.get("over_budget", {}).items()
+                if kind in self.budgets
+            }
             lockstep = state["lockstep"]
             LockstepBarrier(self.names).resume(lockstep)
             resumes = [
@@ -486,6 +499,8 @@ class WorldProcess:
         self.act_counters.accepted = numbers[0]
         self.act_counters.dropped.update(dropped)
         self.malformed_telemetry, self.unknown_senders, self.spoofed_frames = numbers[1:4]
+        for kind, counts in over_budget.items():
+            self.budgets[kind].refused.update(counts)
         self.next_sense_ns = numbers[4]
         self.resumes = [*resumes, {"t_s": self.engine.t_s, "tick": self.tick}]
         self.epoch = new_epoch(avoid=state.get("epoch"))
@@ -509,14 +524,35 @@ class WorldProcess:
 
     # -- callbacks -----------------------------------------------------------------------
 
+    def _within_budget(self, kind: str, robot: str) -> bool:
+        """Whether `robot`'s message of `kind` is within its budget (world/input_budget.py);
+        the first one over it is logged."""
+        if self.budgets[kind].take(robot, self.engine.t_ns, time.monotonic_ns()):
+            return True
+        if (kind, robot) not in self._warned_budget:
+            self._warned_budget.add((kind, robot))
+            log.warning(
+                "%s puts %s faster than %d per control period: the excess is dropped "
+                "(summary.json over_budget)",
+                robot,
+                INPUT_KINDS[kind],
+                PER_PERIOD,
+            )
+        return False
+
     def _on_act(self, sample: zenoh.Sample) -> None:
         robot = SwarmKeys.chunk(str(sample.key_expr), 3)
+        if not self._within_budget("act", robot):
+            return
         self._acts.put((robot, sample.payload.to_bytes(), time.monotonic_ns()))
         if self._acts.qsize() >= self._acts_wake_at or self.guard.holding:
             self._wake.set()
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
-        self._frames.put((SwarmKeys.last_chunk(str(sample.key_expr)), sample.payload.to_bytes()))
+        sender = SwarmKeys.last_chunk(str(sample.key_expr))
+        if not self._within_budget("frame", sender):
+            return
+        self._frames.put((sender, sample.payload.to_bytes()))
         if not self.config.lockstep:
             self._frames_queued.set()
         elif self._frames.qsize() >= self._frames_wake_at:
@@ -528,11 +564,13 @@ class WorldProcess:
         self._wake.set()
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
-        telemetry = parse_message(TelemetryMessage, sample.payload.to_bytes())
         # The key names the sender (the router lets robotN put only on its own key); a sample
         # that names another robot is a robot speaking for another, refused like the medium
         # refuses such a radio frame.
         sender = SwarmKeys.last_chunk(str(sample.key_expr))
+        if not self._within_budget("telemetry", sender):
+            return
+        telemetry = parse_message(TelemetryMessage, sample.payload.to_bytes())
         if telemetry is None or telemetry.robot not in self.index or telemetry.robot != sender:
             self.malformed_telemetry += 1
         else:
@@ -1187,6 +1225,10 @@ class WorldProcess:
             latency_p99_ms=None if p99 is None else round(p99, 3),
         )
 
+    def over_budget(self) -> dict[str, dict[str, int]]:
+        """Messages dropped over their robot's budget, per kind and robot."""
+        return {kind: dict(budget.refused) for kind, budget in self.budgets.items()}
+
     def real_time_factor(self) -> float | None:
         """Simulated seconds per wall second since time started (None before it starts)."""
         if self._clock_started_mono_s is None:
@@ -1226,6 +1268,11 @@ class WorldProcess:
             "sense": {name: self.sense_drops.get(name) for name in self.names},
         }
         summary["malformed_telemetry"] = self.malformed_telemetry + self.telemetry_ahead
+        summary["refused_frames"] = {
+            "unknown_transmitter": self.unknown_senders,
+            "claimed_another_sender": self.spoofed_frames,
+        }
+        summary["over_budget"] = self.over_budget()
         summary["world_resumes"] = list(self.resumes)
         summary["run_events"] = summarise_events(self.event_log.events)
         return summary

@@ -22,6 +22,7 @@ from robot_firmware.net.messages import TelemetryMessage, parse_message
 from tests.fuzz.generate import json_bytes, mutate_json, random_bytes, random_json
 from tests.fuzz.ledger import ACCEPTED, LEDGER
 from tests.fuzz.processes import make_robot, make_world
+from world.input_budget import InputBudget
 from world.runtime import WorldProcess
 
 INPUTS = 10_000
@@ -59,6 +60,10 @@ def _bookkeeping(world: WorldProcess) -> object:
 def test_no_telemetry_sample_the_world_refuses_changes_it() -> None:
     fed_everything, fed_valid_only = make_world(), make_world()
     names = fed_everything.names
+    for world in (fed_everything, fed_valid_only):
+        # 10,000 samples in a moment is a flood, which the input budget would cut
+        # (world/input_budget.py, tested on its own): opened wide here to fuzz what follows it.
+        world.budgets["telemetry"] = InputBudget(names, world.period_ns, burst=2 * INPUTS)
     robot = make_robot("robot2")
     robot.control_tick(robot.process.period_ns)
     template = robot.process.telemetry(robot.process.period_ns).model_dump(mode="json")

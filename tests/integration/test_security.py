@@ -38,6 +38,7 @@ from services.router.access import (
 )
 from swarm_config.credentials import ProcessCredentials, read_credentials
 from tests.integration.conftest import LiveSwarm
+from world.input_budget import BURST, PER_PERIOD
 
 pytestmark = pytest.mark.slow
 
@@ -358,6 +359,68 @@ def test_a_robot_cannot_put_messages_over_the_size_limits(live_swarm: LiveSwarm)
     assert after["malformed_acts"] - before["malformed_acts"] == 1
     assert after["malformed_telemetry"] - before["malformed_telemetry"] == 1
     assert "Traceback" not in (live.out / "logs" / "world.log").read_text()
+
+
+def test_a_robot_flooding_its_radio_gets_no_more_on_the_air_than_its_budget(
+    live_swarm: LiveSwarm,
+) -> None:
+    """robot2 puts signed frames in its own name (valid: the medium would relay each to every
+    other robot) as fast as it can for two seconds.  robot1's inbox may carry no more of them
+    than robot2's budget allows over the whole time it was watched (world/input_budget.py);
+    the rest are counted over budget, and no other robot and no other kind of robot2's
+    messages loses any."""
+    live = live_swarm
+    status = live.all_running()
+    world_pid = status["processes"]["world"]["pid"]
+    live.wait_for(lambda: (live.out / "summary.json").exists(), 60)
+    operator = _open(live, _credentials(live, "operator"))
+    tap = Tap()
+    operator.declare_subscriber(KEYS.radio_rx("robot1"), tap.on_sample)
+    credentials = _credentials(live, "robot2")
+    robot2 = _open(live, credentials)
+    secret, run_id = credentials.swarm_key_bytes(), credentials.run_id_bytes
+    world_t_ns = int(live.wait_for(lambda: _world_t_ns(operator)))
+    publisher = robot2.declare_publisher(KEYS.radio_tx("robot2"))
+    watched_from_s = time.monotonic()
+    sent = 0
+    while time.monotonic() - watched_from_s < 2.0:
+        frame = _signed_frame(secret, run_id, 1, world_t_ns + sent)
+        for _ in range(100):
+            publisher.put(frame)
+        sent += 100
+    robot2.close()
+    time.sleep(1.0)
+    # Whatever reached the inbox by now passed the budget by now: at most what robot2 had
+    # saved (BURST) and what it earned since the flood began.  The budget refills per control
+    # period (10 ms) on the faster of the world's two clocks; in real time simulated time
+    # runs no faster than the wall clock, so the wall clock bounds it (a second of margin).
+    relayed = tap.inbox_marked_frames
+    watched_s = time.monotonic() - watched_from_s + 1.0
+    allowed = BURST + PER_PERIOD * round(watched_s / 0.010)
+
+    def counted() -> dict | None:  # the summary is written every 5 s
+        summary = json.loads((live.out / "summary.json").read_text())
+        over = summary.get("over_budget", {}).get("frame", {}).get("robot2", 0)
+        return summary if over > 0 else None
+
+    summary = live.wait_for(counted, 30, describe="robot2's frames counted over budget")
+    operator.close()
+    over = summary["over_budget"]
+    print(
+        f"\nrobot2 put {sent} signed frames in 2 s: {relayed} reached robot1's inbox in "
+        f"{watched_s:.1f} s (budget {allowed}); over budget {over}"
+    )
+    assert sent >= 10 * allowed, "the flood was too slow to test the budget"
+    assert 0 < relayed <= allowed
+    assert over["frame"]["robot2"] > 0
+    assert all(
+        n == 0
+        for kind, counts in over.items()
+        for who, n in counts.items()
+        if (kind, who) != ("frame", "robot2")
+    ), over
+    after = live.admin("status")["processes"]["world"]
+    assert after["pid"] == world_pid and after["running"]
 
 
 def _world_t_ns(operator: zenoh.Session) -> float | None:
