@@ -73,6 +73,7 @@ from robot_firmware.net.messages import (
     refusal_of,
 )
 from robot_firmware.net.session import open_client
+from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
 from services.router.access import (
     ROUTER_CONFIG_FILE,
     check_router_links,
@@ -239,6 +240,39 @@ class Launcher:
         """Deaths of the world within `WORLD_QUICK_DEATH_S` of its start, in a row."""
         self._admin = AdminQueue()
         plan.check()
+        self._locks: list[RunDirectoryLock] = []
+        try:
+            self._prepare()
+        except BaseException:
+            self._release_directories()
+            raise
+
+    def _lock_directories(self) -> list[RunDirectoryLock]:
+        """The run directory and the credentials directory this run writes: one `swarm up`
+        each (services/launcher/run_lock.py)."""
+        plan = self.plan
+        locks = [RunDirectoryLock.acquire(plan.out_dir, "run directory", "--out DIR")]
+        if plan.across_hosts:
+            return locks  # every host has its own copy of the set, and none is written
+        if plan.credentials_dir is None:
+            written, instead = plan.out_dir / CREDENTIALS_DIR_NAME, "--out DIR"
+        else:
+            written, instead = plan.credentials_dir, "--credentials DIR"
+        try:
+            locks.append(RunDirectoryLock.acquire(written, "credentials directory", instead))
+        except RunDirectoryBusyError:
+            locks[0].release()
+            raise
+        return locks
+
+    def _release_directories(self) -> None:
+        for lock in self._locks:
+            lock.release()
+        self._locks = []
+
+    def _prepare(self) -> None:
+        """Credentials, router config and every child's command line."""
+        plan = self.plan
         logs = plan.out_dir / "logs"
         # Credentials for this run (a new run id at least); children get their file's path.
         if plan.credentials_dir is None:
@@ -256,6 +290,7 @@ class Launcher:
             self.tls = read_tls_files(tls_dir(self.credentials_dir)) if plan.uses_tls else None
             check_router_links(plan.link_connect, plan.link_listen, self.tls)
             listen = [plan.endpoint, *plan.link_listen]
+            self._locks = self._lock_directories()  # before the first write
             logs.mkdir(parents=True, exist_ok=True)
             router_config = write_router_config(
                 self.credentials_dir,
@@ -271,6 +306,7 @@ class Launcher:
                 for identity in (*SERVICE_IDENTITIES, *plan.robots)
             }
         else:
+            self._locks = self._lock_directories()  # before the first write
             logs.mkdir(parents=True, exist_ok=True)
             self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
             self.tls = self._tls_files() if plan.uses_tls else None
@@ -570,3 +606,4 @@ class Launcher:
             if child.log_file is not None:
                 child.log_file.close()
                 child.log_file = None
+        self._release_directories()

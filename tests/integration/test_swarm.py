@@ -269,6 +269,22 @@ def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
     assert changed["ok"] and changed["profile"]["latency_ms"] == 50.0
     assert live_swarm.admin("net", "get")["profile"]["loss"] == 0.2
 
+    # A second `swarm up` on this run's directory (on another port) is refused before it
+    # writes anything: before, it wrote new credentials over this run's, so the command line
+    # could no longer log in, and truncated its router log.
+    operator_file = live_swarm.out / "credentials" / "operator.json"
+    credentials_before = operator_file.read_bytes()
+    router_log_before = (live_swarm.out / "logs" / "router.log").read_bytes()
+    second = swarm_cli(
+        "up", "--no-dashboard", "--out", str(live_swarm.out), "--port", str(free_port())
+    )
+    assert second.returncode == 2, second.stderr
+    assert "another `swarm up` that is still running (pid" in second.stderr, second.stderr
+    assert "Traceback" not in second.stderr
+    assert operator_file.read_bytes() == credentials_before
+    assert (live_swarm.out / "logs" / "router.log").read_bytes().startswith(router_log_before)
+    assert live_swarm.admin("status")["ok"]
+
 
 def test_killed_robot_leaves_and_a_restarted_one_comes_back(live_swarm: LiveSwarm) -> None:
     live_swarm.wait_for(lambda: _all_running(live_swarm))

@@ -1,0 +1,59 @@
+"""One `swarm up` per run directory: an exclusive lock held while the launcher runs.
+
+A second `swarm up` on the directory of a live run (the default `runs/swarm`, typed again in
+another terminal) used to write fresh credentials over the live run's before failing on its
+taken port: `swarm status` then logged in with a password the live router did not know, and a
+robot the live launcher restarted could not log in at all.  It also truncated the live run's
+router log.  Now the launcher takes `<dir>/.swarm-up.lock` with `flock` before it writes
+anything and keeps it until it ends; a second launcher finds it taken and stops with a message
+naming the first one's process id.  The kernel drops the lock when its holder's process ends,
+however it ends, so a killed launcher leaves nothing stale behind; the file itself stays.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+from pathlib import Path
+
+LOCK_FILE_NAME = ".swarm-up.lock"
+
+
+class RunDirectoryBusyError(ValueError):
+    """Another live `swarm up` holds the directory; the message says which and what to do."""
+
+
+class RunDirectoryLock:
+    """The exclusive lock of one directory, held from `acquire` until `release`."""
+
+    def __init__(self, directory: Path, descriptor: int) -> None:
+        self.directory = directory
+        self._descriptor: int | None = descriptor
+
+    @classmethod
+    def acquire(cls, directory: Path, what: str, instead: str) -> RunDirectoryLock:
+        """Lock `directory` (made if missing) for this process; RunDirectoryBusyError when another
+        process holds it.  `what` names the directory's role in the message (e.g. "run
+        directory"), `instead` how to give this run another one (e.g. "--out DIR")."""
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / LOCK_FILE_NAME
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(descriptor, 32).decode("ascii", "replace").strip() or "unknown"
+            os.close(descriptor)
+            raise RunDirectoryBusyError(
+                f"{directory} is the {what} of another `swarm up` that is still running "
+                f"(pid {holder}): stop that one first (Ctrl-C in its terminal), or give this "
+                f"one another ({instead})"
+            ) from None
+        os.ftruncate(descriptor, 0)
+        os.write(descriptor, f"{os.getpid()}\n".encode("ascii"))
+        return cls(directory, descriptor)
+
+    def release(self) -> None:
+        """Let the directory go (again: nothing)."""
+        if self._descriptor is not None:
+            os.close(self._descriptor)  # closing the file drops its flock
+            self._descriptor = None
