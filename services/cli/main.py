@@ -21,6 +21,7 @@ from typing import TypeVar
 from pydantic import BaseModel
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from services.launcher.orphans import end_with_the_launcher
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
     CREDENTIALS_FILE_ENV,
@@ -108,7 +109,9 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
 
 def _install_stop(stop: threading.Event) -> None:
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    # SIGHUP: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish
+    # without stopping the children.
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
 
 
@@ -1057,6 +1060,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=os.environ.get("SWARM_LOG_LEVEL", "INFO"),
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    end_with_the_launcher()
     given = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(given[0] if given else None)
     args = parser.parse_args(given)

@@ -20,6 +20,8 @@ started again too, and resumes from its last checkpoint in `<out>/checkpoints/`
 `WORLD_MAX_QUICK_DEATHS` times in a row ends the run.  A robot that dies, and a process killed
 with `kill`, stay down (a power cut) until restarted.
 The process factory is injectable so tests can substitute their own.
+One launcher runs per run directory (services/launcher/run_lock.py), and its children end with
+it, however it ends (services/launcher/orphans.py).
 
 Every run gets fresh credentials (swarm_config/credentials.py) in `<out>/credentials/`: one
 file per identity (router, world, launcher, dashboard, operator, each robot), the router's
@@ -73,6 +75,7 @@ from robot_firmware.net.messages import (
     refusal_of,
 )
 from robot_firmware.net.session import open_client
+from services.launcher.orphans import LAUNCHER_PID_ENV
 from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
 from services.router.access import (
     ROUTER_CONFIG_FILE,
@@ -383,6 +386,7 @@ class Launcher:
         if self.tls is not None:
             env[TLS_ROOT_CA_ENV] = str(self.tls.ca_certificate.resolve())
         env["PYTHONUNBUFFERED"] = "1"
+        env[LAUNCHER_PID_ENV] = str(os.getpid())  # the child ends with this process
         return env
 
     def start(self, name: str) -> None:

@@ -286,6 +286,42 @@ def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
     assert live_swarm.admin("status")["ok"]
 
 
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGHUP], ids=["sigkill", "sighup"])
+def test_a_launcher_killed_or_hung_up_takes_its_whole_swarm_with_it(
+    live_swarm: LiveSwarm, how: signal.Signals
+) -> None:
+    """`kill -9` of `swarm up` (no orderly stop) and a closed terminal (SIGHUP): before, the
+    router, the world and the robots ran on unsupervised, holding the port.  Now every child
+    ends too, the world after writing its final summary."""
+    children = {
+        name: process["pid"] for name, process in live_swarm.all_running()["processes"].items()
+    }
+    live_swarm.wait_for(lambda: (live_swarm.out / "summary.json").exists(), 60)
+    summary_before = (live_swarm.out / "summary.json").stat().st_mtime_ns
+    live_swarm.process.send_signal(how)
+    live_swarm.process.wait(timeout=60)
+    live_swarm.wait_for(
+        lambda: not any(_pid_alive(pid) for pid in children.values()),
+        timeout_s=60,
+        describe=f"every child of the launcher gone after {how.name}: {children}",
+    )
+    assert (live_swarm.out / "summary.json").stat().st_mtime_ns > summary_before
+    world_log = (live_swarm.out / "logs" / "world.log").read_text()
+    assert "Traceback" not in world_log
+    if how == signal.SIGHUP:
+        assert live_swarm.process.returncode == 0
+    # The port is free again: a new swarm can take the same directory and port.
+    assert run_swarm(live_swarm.out, "--duration", "1", port=live_swarm.port)["clock_mode"]
+
+
 def test_killed_robot_leaves_and_a_restarted_one_comes_back(live_swarm: LiveSwarm) -> None:
     live_swarm.wait_for(lambda: _all_running(live_swarm))
     live_swarm.wait_for(lambda: len(_world_status(live_swarm)["live"]) == len(ROBOTS))
