@@ -134,6 +134,8 @@ class Child:
     stopped: bool = False
     """SIGSTOPped by the launcher and not continued since."""
     started_mono_s: float = 0.0
+    exit_reported: bool = False
+    """An exit of its own has been reported since its last start."""
 
     @property
     def running(self) -> bool:
@@ -396,6 +398,7 @@ class Launcher:
         child.process = self.factory(child.argv, child.log_file, self._env(name))
         child.killed = False
         child.stopped = False
+        child.exit_reported = False
         child.started_mono_s = time.monotonic()
         log.info("started %s (pid %d)", name, child.process.pid)
 
@@ -551,6 +554,7 @@ class Launcher:
                 while not self.stop.is_set():
                     self._serve()
                     ended = self.supervise_world()
+                    self.report_exits()
                     if ended is not None:
                         code = ended
                         break
@@ -563,6 +567,24 @@ class Launcher:
                 token.undeclare()
                 self.shutdown()
         return code
+
+    def report_exits(self) -> None:
+        """Say once, on the launcher's log, that a robot or the dashboard ended by itself (a
+        crash, a port it could not take): it stays down, as a power cut would leave it."""
+        for name, child in self.children.items():
+            if name in ("world", "router") or child.killed or child.exit_reported:
+                continue
+            status = None if child.process is None else child.process.poll()
+            if status is None:
+                continue
+            child.exit_reported = True
+            log.warning(
+                "%s exited by itself (status %d); it stays down until `swarm restart %s`: see %s",
+                name,
+                status,
+                name,
+                child.log_path,
+            )
 
     def supervise_world(self) -> int | None:
         """The run's exit status when the world has ended it, else None.

@@ -67,6 +67,25 @@ def test_a_world_that_dies_is_started_again(launcher: Launcher) -> None:
     assert launcher.children["world"].restarts == 1
 
 
+def test_a_robot_that_ends_by_itself_is_reported_once_and_a_killed_one_not_at_all(
+    launcher: Launcher, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level("WARNING", logger="swarm.launcher")
+    _process(launcher, "robot1").returncode = 1  # crashed
+    launcher.admin_handlers()["kill"](_request("robot2"))  # a power cut on purpose
+    for _ in range(3):
+        launcher.report_exits()
+    reports = [r.getMessage() for r in caplog.records if "exited by itself" in r.getMessage()]
+    assert reports == [
+        "robot1 exited by itself (status 1); it stays down until `swarm restart robot1`: see "
+        f"{launcher.children['robot1'].log_path}"
+    ]
+    launcher.start("robot1")  # restarted, then crashes again: reported again
+    _process(launcher, "robot1").returncode = 1
+    launcher.report_exits()
+    assert sum("exited by itself" in r.getMessage() for r in caplog.records) == 2
+
+
 def test_a_clean_world_exit_ends_the_run(launcher: Launcher) -> None:
     _world(launcher).returncode = 0
     assert launcher.supervise_world() == 0
