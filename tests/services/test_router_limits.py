@@ -5,7 +5,6 @@ the config the router runs."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,14 +33,11 @@ LONGEST_FLOAT = -1.2345678901234567e-300
 WHEELS = 4
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _robots_have_credentials(tmp_path_factory: pytest.TempPathFactory) -> None:
-    robot_credentials(tmp_path_factory.mktemp("credentials"))
-
-
 @pytest.fixture
-def robot() -> Iterator[Robot]:
-    yield make_robot("robot2")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Robot:
+    """robot2's process, booted, without a network (the credentials it needs are made once)."""
+    robot_credentials(tmp_path_factory.mktemp("credentials"))
+    return make_robot("robot2")
 
 
 def every_register_fault(robot: str) -> list[dict[str, Any]]:
