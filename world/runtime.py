@@ -586,11 +586,20 @@ class WorldProcess:
     # -- queues, drained by the main loop ------------------------------------------------
 
     def _drain(self) -> None:
+        # Token changes queued since the last pass, each robot's last one only (in the order
+        # of those): a robot identity that declares and drops its token thousands of times a
+        # second made one event, fsynced, and one log line of each, and the world spent
+        # minutes on them.  A change undone within one pass (milliseconds) is no restart: a
+        # restarted robot boots for a second before its new token comes.
+        changes: dict[str, bool] = {}
         while True:
             try:
                 name, alive = self._liveliness.get_nowait()
             except queue.Empty:
                 break
+            changes.pop(name, None)
+            changes[name] = alive
+        for name, alive in changes.items():
             self._on_liveliness(name, alive)
         if self._token_lost_mono_s:
             self._tokens_lost_for_good()
