@@ -181,6 +181,24 @@ def _settings(
 def _cmd_credentials(args: argparse.Namespace) -> int:
     """Write a credentials set for a scenario's robots into DIR: keep the secrets of a complete
     set already there (unless --rotate), always with a new run id."""
+    from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
+
+    scenario_file = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
+    directory = Path(args.dir)
+    lock = None
+    if directory.exists():  # a directory a live `swarm up` writes into is left alone
+        try:
+            lock = RunDirectoryLock.acquire(directory, "credentials directory", "DIR")
+        except RunDirectoryBusyError as exc:
+            raise UsageError(str(exc)) from None
+    try:
+        return _write_credentials(args, scenario_file, directory)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _write_credentials(args: argparse.Namespace, scenario_file: Path, directory: Path) -> int:
     from services.router.access import write_router_config
     from swarm_config.credentials import (
         generate_credential_set,
@@ -189,11 +207,8 @@ def _cmd_credentials(args: argparse.Namespace) -> int:
     )
     from swarm_config.scenario import load_scenario
 
-    scenario = load_scenario(
-        Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
-    )
+    scenario = load_scenario(scenario_file)
     swarm = _swarm(args)
-    directory = Path(args.dir)
     listen = args.listen or [DEFAULT_TLS_ENDPOINT if args.tls else DEFAULT_ENDPOINT]
     try:
         tls_files, tls_note = _tls_files_for(args, directory, swarm, listen)
