@@ -26,8 +26,7 @@ class RunDirectoryBusyError(ValueError):
 class RunDirectoryLock:
     """The exclusive lock of one directory, held from `acquire` until `release`."""
 
-    def __init__(self, directory: Path, descriptor: int) -> None:
-        self.directory = directory
+    def __init__(self, descriptor: int) -> None:
         self._descriptor: int | None = descriptor
 
     @classmethod
@@ -50,7 +49,7 @@ class RunDirectoryLock:
             ) from None
         os.ftruncate(descriptor, 0)
         os.write(descriptor, f"{os.getpid()}\n".encode("ascii"))
-        return cls(directory, descriptor)
+        return cls(descriptor)
 
     def release(self) -> None:
         """Let the directory go (again: nothing)."""
