@@ -106,6 +106,7 @@ from robot_firmware.net.messages import (
     NetProfileRequest,
     NetReply,
     RadioStats,
+    RefusedInput,
     RobotTruth,
     RunMetrics,
     TelemetryMessage,
@@ -1238,6 +1239,18 @@ class WorldProcess:
         """Messages dropped over their robot's budget, per kind and robot."""
         return {kind: dict(budget.refused) for kind, budget in self.budgets.items()}
 
+    def refused_input(self) -> RefusedInput:
+        """What the world refused from the robots since it started (summary and status)."""
+        return RefusedInput(
+            malformed_acts=self.act_counters.dropped_total,
+            malformed_telemetry=self.malformed_telemetry + self.telemetry_ahead,
+            refused_frames={
+                "unknown_transmitter": self.unknown_senders,
+                "claimed_another_sender": self.spoofed_frames,
+            },
+            over_budget=self.over_budget(),
+        )
+
     def real_time_factor(self) -> float | None:
         """Simulated seconds per wall second since time started (None before it starts)."""
         if self._clock_started_mono_s is None:
@@ -1271,17 +1284,15 @@ class WorldProcess:
             name: None if (timing := self.timing.get(name)) is None else timing.model_dump()
             for name in self.names
         }
-        summary["malformed_acts"] = self.act_counters.dropped_total
+        refused = self.refused_input()
+        summary["malformed_acts"] = refused.malformed_acts
         summary["dropped_inputs"] = {
             "act": self.act_counters.dropped_as_dict(),
             "sense": {name: self.sense_drops.get(name) for name in self.names},
         }
-        summary["malformed_telemetry"] = self.malformed_telemetry + self.telemetry_ahead
-        summary["refused_frames"] = {
-            "unknown_transmitter": self.unknown_senders,
-            "claimed_another_sender": self.spoofed_frames,
-        }
-        summary["over_budget"] = self.over_budget()
+        summary["malformed_telemetry"] = refused.malformed_telemetry
+        summary["refused_frames"] = refused.refused_frames
+        summary["over_budget"] = refused.over_budget
         summary["world_resumes"] = list(self.resumes)
         summary["run_events"] = summarise_events(self.event_log.events)
         return summary
@@ -1467,6 +1478,7 @@ class WorldProcess:
                 if self.config.lockstep
                 else None
             ),
+            refused_input=self.refused_input(),
         )
 
     def _net_request(self, payload: bytes) -> NetReply | AdminError:

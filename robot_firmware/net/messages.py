@@ -321,6 +321,44 @@ class LockstepSeat(Message):
     (world/lockstep.py, "Lost messages")."""
 
 
+class RefusedInput(Message):
+    """What the world refused from the robots since it started (docs/summary-schema.md): the
+    same figures as summary.json's `malformed_acts`, `malformed_telemetry`, `refused_frames`
+    and `over_budget`."""
+
+    malformed_acts: int = 0
+    malformed_telemetry: int = 0
+    refused_frames: dict[str, int] = Field(default_factory=dict)
+    """Per reason: `unknown_transmitter`, `claimed_another_sender`."""
+    over_budget: dict[str, dict[str, int]] = Field(default_factory=dict)
+    """Per kind (`act`, `frame`, `telemetry`), per robot (world/input_budget.py)."""
+
+    def total(self) -> int:
+        return (
+            self.malformed_acts
+            + self.malformed_telemetry
+            + sum(self.refused_frames.values())
+            + sum(sum(per_robot.values()) for per_robot in self.over_budget.values())
+        )
+
+    def describe(self) -> str:
+        """One line for a terminal: the non-zero figures, the robots over budget named."""
+        parts = [
+            f"{count} {what}"
+            for what, count in (
+                ("malformed acts", self.malformed_acts),
+                ("malformed telemetry", self.malformed_telemetry),
+                *((f"frames ({reason})", n) for reason, n in self.refused_frames.items()),
+            )
+            if count
+        ]
+        for kind, per_robot in self.over_budget.items():
+            over = ", ".join(f"{robot} {n}" for robot, n in per_robot.items() if n)
+            if over:
+                parts.append(f"{kind} over budget: {over}")
+        return "; ".join(parts) if parts else "none"
+
+
 class RunMetrics(Message):
     """The run's metrics so far (DESIGN.md §8), as in summary.json."""
 
@@ -370,6 +408,7 @@ class WorldStatusReply(AdminOk):
     lockstep_owed: dict[str, LockstepSeat]
     lockstep_profile: LockstepProfileReport | None = None
     """Lockstep only: where the ticks' wall time went since time started."""
+    refused_input: RefusedInput = RefusedInput()
 
 
 class NetProfileRequest(Message):

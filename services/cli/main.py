@@ -544,7 +544,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
 def _print_world_line(args: argparse.Namespace) -> None:
     """One line on stderr (stdout stays the launcher's JSON): the world's simulation time,
     clock mode and real-time factor, which drops below 1 while the world holds its time for
-    a starved robot (world/realtime_guard.py)."""
+    a starved robot (world/realtime_guard.py), and what it refused from the robots
+    (malformed or spoofed input, floods over the input budgets: world/input_budget.py)."""
     from robot_firmware.net.messages import WorldStatusReply, parse_reply
 
     quick = argparse.Namespace(
@@ -558,7 +559,8 @@ def _print_world_line(args: argparse.Namespace) -> None:
     factor = "n/a" if reply.real_time_factor is None else f"{reply.real_time_factor:.2f}"
     print(
         f"world: t = {reply.t_s:.1f} s, {reply.clock_mode.replace('_', ' ')}, real-time factor "
-        f"{factor} since start, {len(reply.live)} of {len(reply.robots)} robots live",
+        f"{factor} since start, {len(reply.live)} of {len(reply.robots)} robots live; "
+        f"refused from robots: {reply.refused_input.describe()}",
         file=sys.stderr,
     )
 

@@ -1,5 +1,6 @@
 """`swarm status`: the launcher's JSON on stdout, and one line about the world on stderr with
-its real-time factor (services/cli/main.py); the world's reply faked, no network."""
+its real-time factor and what it refused from the robots (services/cli/main.py); the world's
+reply faked, no network."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 
 from services.cli import main as cli
 from swarm_config.scenario import load_scenario
+from world.input_budget import BURST
 from world.runtime import WorldConfig, WorldProcess
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,3 +58,34 @@ def test_the_status_line_says_so_when_the_world_does_not_answer(
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err.strip() == "world: no answer within 1 s"
+
+
+def test_the_status_line_names_what_the_world_refused_from_the_robots(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    world = WorldProcess(WorldConfig(scenario=PAPER), load_scenario(PAPER))
+    taken = [world._within_budget("frame", "robot2") for _ in range(BURST + 25)]
+    assert taken.count(False) == 25  # the clock stood still: the burst, then nothing
+    world.spoofed_frames = 3
+    status = world._status()
+    # The same figures as summary.json's, from the same method.
+    summary = world.summary()
+    assert status.refused_input.over_budget == summary["over_budget"]
+    assert status.refused_input.refused_frames == summary["refused_frames"]
+    assert status.refused_input.total() == 28
+    monkeypatch.setattr(cli, "_ask_if_answered", lambda *_args: status.to_json_bytes())
+    cli._print_world_line(_args())
+    line = capsys.readouterr().err
+    assert "refused from robots: 3 frames (claimed_another_sender); " in line, line
+    assert "frame over budget: robot2 25" in line, line
+    assert "robot1" not in line and "robot3" not in line, line
+
+
+def test_the_status_line_says_none_when_nothing_was_refused(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    world = WorldProcess(WorldConfig(scenario=PAPER), load_scenario(PAPER))
+    status = world._status()
+    monkeypatch.setattr(cli, "_ask_if_answered", lambda *_args: status.to_json_bytes())
+    cli._print_world_line(_args())
+    assert capsys.readouterr().err.rstrip().endswith("refused from robots: none")
