@@ -231,7 +231,9 @@ class DashboardService:
         sample without every robot of the scenario), `unknown_robot` (telemetry of a robot
         the scenario does not name), `wrong_sender` (telemetry naming another robot than the
         one whose key it came on: the router lets each robot put only on its own),
-        `nothing_to_draw` (telemetry without an estimate or gains)."""
+        `ahead_of_world` (telemetry stamped more than `TELEMETRY_LEAD_MAX_S` past the newest
+        truth sample, services/dashboard/scene.py), `nothing_to_draw` (telemetry without an
+        estimate or gains)."""
 
     # -- zenoh callbacks: queue and return ------------------------------------------------
 
@@ -412,7 +414,11 @@ class DashboardService:
             return "wrong_sender"
         update = self.scene.on_telemetry(telemetry)
         if update is None:
-            return "unknown_robot" if telemetry.robot not in self.scene.names else "nothing_to_draw"
+            if telemetry.robot not in self.scene.names:
+                return "unknown_robot"
+            if self.scene.ahead_of_world(telemetry.t_s):
+                return "ahead_of_world"
+            return "nothing_to_draw"
         return update
 
     # -- main loop -----------------------------------------------------------------------

@@ -57,6 +57,14 @@ RADIO_COLOURS: tuple[Rgb, Rgb] = ((68, 68, 68), (0, 114, 178))
 
 AXES = ("x", "y", "θ")
 
+TELEMETRY_LEAD_MAX_S = 1.0
+"""How far past the newest truth sample a telemetry sample may be stamped and still be drawn.
+A robot stamps its telemetry with the world's time extrapolated by at most a period, and the
+world sends truth every few periods; only a robot whose world is gone or frozen (its clock
+runs on in a safe stop) or one that lies about its time stamps further ahead.  Such a sample
+would stretch the timeline and, at the next truth sample, look like a world that restarted
+(its clock a second or more behind the scene's): so it is not drawn (`ahead_of_world`)."""
+
 EVENT_KINDS: tuple[str, ...] = get_args(EventKind)
 EVENT_ROWS: dict[str, int] = {
     kind: len(EVENT_KINDS) - 1 - row for row, kind in enumerate(EVENT_KINDS)
@@ -210,6 +218,7 @@ class SwarmScene:
         self._radio = _RadioWindow(radio_window_s)
         self._real_time_factor = RealTimeFactorWindow(real_time_factor_window_s)
         self._last_t_s: float | None = None
+        self._truth_t_s: float | None = None
         self.rejected_truth = 0
         self.unknown_robots: set[str] = set()
 
@@ -217,6 +226,11 @@ class SwarmScene:
     def last_t_s(self) -> float | None:
         """Simulated time of the newest truth or telemetry seen."""
         return self._last_t_s
+
+    def ahead_of_world(self, t_s: float) -> bool:
+        """Whether a telemetry sample stamped `t_s` is more than `TELEMETRY_LEAD_MAX_S` past
+        the newest truth sample (before the first one there is nothing to judge by)."""
+        return self._truth_t_s is not None and t_s > self._truth_t_s + TELEMETRY_LEAD_MAX_S
 
     # -- geometry fixed by the scenario ----------------------------------------------------
 
@@ -390,6 +404,7 @@ class SwarmScene:
         t_s = truth.t_s
         self._restart_if_clock_jumped_back(t_s)
         self._advance_clock(t_s)
+        self._truth_t_s = t_s
         poses = np.array([truth.robots[n].pose for n in self.names], dtype=np.float64)
         reference = reference_points(
             poses, np.asarray(truth.reference, dtype=np.float64), self.layout
@@ -510,10 +525,13 @@ class SwarmScene:
 
     def on_telemetry(self, telemetry: TelemetryMessage) -> Update | None:
         """The robot's own pose estimate, its sonar sweep and its scheduled PID gains at
-        telemetry.t_s."""
+        telemetry.t_s; None for a robot the scenario does not name and for a sample stamped
+        too far ahead of the world (`ahead_of_world`)."""
         name = telemetry.robot
         if name not in self.colours:
             self.unknown_robots.add(name)
+            return None
+        if self.ahead_of_world(telemetry.t_s):
             return None
         self._advance_clock(telemetry.t_s)
         records: list[LogRecord] = []

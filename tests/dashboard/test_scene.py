@@ -15,7 +15,14 @@ from robot_firmware.net.messages import TelemetryMessage, TruthMessage, parse_me
 from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.live import keep_previous_recording, viewer_url
-from services.dashboard.scene import DOWN_COLOUR, ROBOT_COLOURS, LogRecord, SwarmScene, Update
+from services.dashboard.scene import (
+    DOWN_COLOUR,
+    ROBOT_COLOURS,
+    TELEMETRY_LEAD_MAX_S,
+    LogRecord,
+    SwarmScene,
+    Update,
+)
 from swarm_config.scenario import Scenario, load_scenario
 from world.metrics import FormationLayout
 
@@ -132,6 +139,32 @@ def test_trail_keeps_recent_poses_and_restarts_when_the_world_does(scenario: Sce
     after_restart = scene.on_truth(_truth(scenario, 0.0))
     strip = _archetype(_record(after_restart, entities.robot("robot1")), rr.LineStrips2D)
     assert len(strip.strips.as_arrow_array().to_pylist()[0]) == 1
+
+
+def test_telemetry_stamped_far_past_the_world_is_not_drawn_and_moves_nothing(
+    scenario: Scenario,
+) -> None:
+    scene = SwarmScene(scenario, trail_duration_s=2.0, trail_period_s=0.0)
+    for k in range(80):
+        scene.on_truth(_truth(scenario, 0.05 * k))
+    newest_truth_s = 0.05 * 79
+
+    def telemetry(t_s: float) -> TelemetryMessage:
+        payload = {"robot": "robot2", "t_s": t_s, "estimate": [0.1, 0.2, 0.3]}
+        message = parse_message(TelemetryMessage, json.dumps(payload).encode())
+        assert message is not None
+        return message
+
+    for lie_s in (1e9, newest_truth_s + TELEMETRY_LEAD_MAX_S + 0.01):
+        assert scene.ahead_of_world(lie_s)
+        assert scene.on_telemetry(telemetry(lie_s)) is None
+        assert scene.last_t_s == newest_truth_s
+    honest = scene.on_telemetry(telemetry(newest_truth_s + 0.06))
+    assert honest is not None and honest.t_s == newest_truth_s + 0.06
+    # The next truth sample finds no clock jump: the trail goes on.
+    update = scene.on_truth(_truth(scenario, newest_truth_s + 0.05))
+    strip = _archetype(_record(update, entities.robot("robot1")), rr.LineStrips2D)
+    assert len(strip.strips.as_arrow_array().to_pylist()[0]) > 15
 
 
 def test_gains_come_from_telemetry_at_its_own_time(scenario: Scenario) -> None:

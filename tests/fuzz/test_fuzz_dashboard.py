@@ -26,7 +26,7 @@ from tests.fuzz.processes import PAPER, make_robot, make_world
 INPUTS = 10_000
 REASONS = frozenset(
     ("not_json", "does_not_fit", "non_finite", "out_of_range", "missing_robots")
-    + ("unknown_robot", "wrong_sender", "nothing_to_draw")
+    + ("unknown_robot", "wrong_sender", "ahead_of_world", "nothing_to_draw")
 )
 
 
@@ -115,6 +115,29 @@ def test_telemetry_samples(dashboard: DashboardService) -> None:
         return message
 
     fuzz_samples("dashboard telemetry", dashboard, "telemetry", valid, 9)
+
+
+def test_telemetry_stamped_far_past_the_worlds_truth_is_counted_and_not_drawn(
+    dashboard: DashboardService,
+) -> None:
+    names = dashboard.scene.names
+    truth = {
+        "t_s": 2.0,
+        "tick": 200,
+        "robots": {n: {"pose": [0.5 * i, -0.2, 0.5], "alive": True} for i, n in enumerate(names)},
+        "reference": [0.0, 0.0, 0.0],
+    }
+    assert not isinstance(dashboard.update_for("truth", json_bytes(truth)), str)
+    robot = make_robot("robot2")
+    robot.control_tick(robot.process.period_ns)
+    honest = robot.process.telemetry(2_000_000_000).model_dump(mode="json")
+    before = _scene_state(dashboard)
+    for lie_s in (1e6, 3.5):
+        lie = json_bytes({**honest, "t_s": lie_s})
+        assert dashboard.update_for("telemetry", lie, sender="robot2") == "ahead_of_world"
+        assert _scene_state(dashboard) == before
+    drawn = dashboard.update_for("telemetry", json_bytes(honest), sender="robot2")
+    assert not isinstance(drawn, str) and drawn.records
 
 
 def test_telemetry_naming_another_robot_than_its_key_is_not_drawn(
