@@ -1,9 +1,10 @@
 """The robot process: one robot's fabric and firmware, wired to the swarm over Zenoh.
 
 Inputs arrive in Zenoh callbacks, which only queue them (DESIGN: never block in a callback):
-`wire/<robot>/sense` (the pins), `radio/rx/<robot>` (frames delivered by the radio medium) and
-admin queries.  The main loop owns the fabric and the firmware and is a thin shell around the
-pure `TickScheduler` (robot_firmware/tick_scheduler.py), which decides when a tick runs and at
+`wire/<robot>/sense` (the pins) and admin queries; the frames the radio medium delivers on
+`radio/rx/<robot>` wait in a Zenoh ring channel until the loop takes them, with no callback.
+The main loop owns the fabric and the firmware and is a thin shell around the pure
+`TickScheduler` (robot_firmware/tick_scheduler.py), which decides when a tick runs and at
 what simulation time: in real time a 100 Hz loop on the monotonic clock, in lockstep (when the
 world's sense messages say so) one tick per sense message, answered by an act message carrying
 the same tick number.  Each tick applies the sense messages that arrived to the pins, hands over
@@ -88,6 +89,10 @@ from swarm_config.settings import LayeredSettings, describe_validation_error, pa
 log = logging.getLogger("swarm.robot")
 
 NS_PER_S = 1_000_000_000
+FRAME_RING = 1024
+"""Radio frames Zenoh holds for the loop between two of its passes (the oldest dropped)."""
+FRAME_POLL_S = 0.0005
+"""How often a lockstep tick waiting for announced radio frames looks for them."""
 
 
 class RobotConfig(LayeredSettings):
@@ -190,16 +195,16 @@ class RobotProcess:
         self._sense.append((sample.payload.to_bytes(), time.monotonic_ns()))
         self._wake.set()
 
-    def _on_frame(self, sample: zenoh.Sample) -> None:
-        self._frames.append(sample.payload.to_bytes())
-        # Only a lockstep tick whose sense message is in and whose announced frames are not
-        # all here waits for this one.  Otherwise the next tick (real time) or the sense
-        # message's own wake-up (lockstep) takes it: waking the loop for each of the 20 (N - 1)
-        # frames a second would cost a thread wake-up per frame for nothing.  The frame is
-        # queued before the check, so a loop that has not yet applied the sense message
-        # counts it when it does.
-        if self.scheduler.awaits_frames:
-            self._wake.set()
+    def _collect_frames(self, received: zenoh.Handler[zenoh.Sample]) -> None:
+        """Move the radio frames Zenoh has queued on `received` into the loop's queue.
+
+        Frames are not taken in a Python callback: Zenoh's receive thread puts each in a ring
+        (`FRAME_RING`, the oldest dropped when full, as the queue drops them) and the loop
+        takes them when it comes round.  A callback would wake a Python thread for each of
+        the 20 (N - 1) frames a second, most of them alone, to do no more than queue it."""
+        frames = self._frames
+        while (sample := received.try_recv()) is not None:
+            frames.append(sample.payload.to_bytes())
 
     def _on_peer_token(self, sample: zenoh.Sample) -> None:
         name = SwarmKeys.last_chunk(str(sample.key_expr))
@@ -212,7 +217,9 @@ class RobotProcess:
         with open_client(cfg.connect, cfg.zenoh_config, cfg.credentials) as session:
             name = cfg.name
             session.declare_subscriber(self.keys.sense(name), self._on_sense)
-            session.declare_subscriber(self.keys.radio_rx(name), self._on_frame)
+            frame_ring = session.declare_subscriber(
+                self.keys.radio_rx(name), zenoh.handlers.RingChannel(FRAME_RING)
+            )
             session.declare_queryable(self.keys.admin(name, "*"), self._admin.on_query)
             act_pub = session.declare_publisher(self.keys.act(name))
             tx_pub = session.declare_publisher(self.keys.radio_tx(name))
@@ -236,10 +243,19 @@ class RobotProcess:
                     )
                 self._serve_queries()
                 self._take_sense()
+                self._collect_frames(frame_ring.handler)
                 decision = self.scheduler.poll(time.monotonic_ns(), len(self._frames))
                 if isinstance(decision, Wait):
-                    self.stall_watch.due(time.monotonic_ns() + round(decision.timeout_s * NS_PER_S))
-                    self._wake.wait(decision.timeout_s)
+                    # A lockstep tick short of its announced frames looks for them again
+                    # shortly: they come on no callback.  They are seldom late, as the world
+                    # puts them before the sense message that announces them.
+                    timeout_s = (
+                        min(decision.timeout_s, FRAME_POLL_S)
+                        if self.scheduler.awaits_frames
+                        else decision.timeout_s
+                    )
+                    self.stall_watch.due(time.monotonic_ns() + round(timeout_s * NS_PER_S))
+                    self._wake.wait(timeout_s)
                     self._wake.clear()
                     continue
                 self._run_period(decision, act_pub, tx_pub, telemetry_pub)

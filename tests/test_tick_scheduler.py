@@ -227,8 +227,8 @@ def test_lockstep_waits_for_the_frames_its_sense_message_announces() -> None:
 
 
 def test_only_a_lockstep_tick_short_of_its_announced_frames_awaits_frames() -> None:
-    """What decides whether a frame's arrival wakes the robot's loop (robot_firmware/runtime.py
-    `_on_frame`)."""
+    """What decides whether the robot's loop looks for frames again shortly instead of
+    sleeping until its next input (robot_firmware/runtime.py, `FRAME_POLL_S`)."""
     scheduler = TickScheduler(PERIOD_NS)
     assert not scheduler.awaits_frames  # no sense message yet: it will wake the loop itself
     real_time(scheduler, 0, 0)

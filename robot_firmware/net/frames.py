@@ -161,7 +161,7 @@ class Role(enum.IntEnum):
     LEADER = 1
 
 
-_ROLE_VALUES = frozenset(int(role) for role in Role)
+_ROLES: dict[int, Role] = {int(role): role for role in Role}
 
 
 class DropReason(enum.Enum):
@@ -226,6 +226,19 @@ class RadioFrame:
     def flags(self) -> int:
         """The flags word as sent."""
         return FLAG_LOCALISED if self.localised else 0
+
+    @classmethod
+    def _from_wire(cls, values: tuple[object, ...]) -> RadioFrame:
+        """A frame from fields in `__slots__` order that the wire format already bounds (the
+        struct's widths, a known role, floats, the run id's length): the checks of
+        `__post_init__` cannot fail on them, so a receiver skips them."""
+        frame = object.__new__(cls)
+        for name, value in zip(_SLOTS, values, strict=True):
+            object.__setattr__(frame, name, value)
+        return frame
+
+
+_SLOTS: tuple[str, ...] = RadioFrame.__slots__
 
 
 def hkdf_sha256(ikm: bytes, salt: bytes, info: bytes, length: int) -> bytes:
@@ -338,7 +351,15 @@ def content_problem(frame: RadioFrame) -> DropReason | None:
         frame.ydot_mps,
         frame.thetadot_radps,
     )
-    if not all(math.isfinite(value) for value in values):
+    isfinite = math.isfinite
+    if not (
+        isfinite(values[0])
+        and isfinite(values[1])
+        and isfinite(values[2])
+        and isfinite(values[3])
+        and isfinite(values[4])
+        and isfinite(values[5])
+    ):
         return DropReason.NON_FINITE
     if (
         abs(frame.x_m) > MAX_ABS_POSITION_M
@@ -588,25 +609,28 @@ def _parse(
         return DropReason.WRONG_RUN
     if not hmac.compare_digest(frame_tag(raw[:BODY_BYTES], key), tag):
         return DropReason.BAD_TAG
-    if role not in _ROLE_VALUES:
+    known_role = _ROLES.get(role)
+    if known_role is None:
         return DropReason.UNKNOWN_ROLE
     if flags & RESERVED_FLAGS_MASK:
         return DropReason.RESERVED_FLAGS
-    frame = RadioFrame(
-        role=Role(role),
-        sender_id=sender_id,
-        swarm_hash=frame_swarm_hash,
-        run_id=frame_run_id,
-        sequence=sequence,
-        timestamp_ns=timestamp_ns,
-        x_m=x_m,
-        y_m=y_m,
-        theta_rad=theta_rad,
-        xdot_mps=xdot_mps,
-        ydot_mps=ydot_mps,
-        thetadot_radps=thetadot_radps,
-        localised=bool(flags & FLAG_LOCALISED),
-        term=term,
+    frame = RadioFrame._from_wire(
+        (
+            known_role,
+            sender_id,
+            sequence,
+            timestamp_ns,
+            x_m,
+            y_m,
+            theta_rad,
+            xdot_mps,
+            ydot_mps,
+            thetadot_radps,
+            bool(flags & FLAG_LOCALISED),
+            frame_swarm_hash,
+            frame_run_id,
+            term,
+        )
     )
     problem = content_problem(frame)
     return frame if problem is None else problem
