@@ -580,6 +580,7 @@ def _parse(
         return DropReason.TOO_SHORT
     if len(raw) > FRAME_BYTES:
         return DropReason.TOO_LONG
+    # motion: x_m, y_m, theta_rad, xdot_mps, ydot_mps, thetadot_radps, in `RadioFrame`'s order.
     (
         magic,
         version,
@@ -589,12 +590,7 @@ def _parse(
         frame_run_id,
         sequence,
         timestamp_ns,
-        x_m,
-        y_m,
-        theta_rad,
-        xdot_mps,
-        ydot_mps,
-        thetadot_radps,
+        *motion,
         flags,
         term,
         tag,
@@ -615,22 +611,8 @@ def _parse(
     if flags & RESERVED_FLAGS_MASK:
         return DropReason.RESERVED_FLAGS
     frame = RadioFrame._from_wire(
-        (
-            known_role,
-            sender_id,
-            sequence,
-            timestamp_ns,
-            x_m,
-            y_m,
-            theta_rad,
-            xdot_mps,
-            ydot_mps,
-            thetadot_radps,
-            bool(flags & FLAG_LOCALISED),
-            frame_swarm_hash,
-            frame_run_id,
-            term,
-        )
+        (known_role, sender_id, sequence, timestamp_ns, *motion)
+        + (bool(flags & FLAG_LOCALISED), frame_swarm_hash, frame_run_id, term)
     )
     problem = content_problem(frame)
     return frame if problem is None else problem
