@@ -10,7 +10,6 @@ import argparse
 import json
 import logging
 import os
-import signal
 import sys
 import threading
 import time
@@ -22,6 +21,7 @@ from pydantic import BaseModel
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
+from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
     CREDENTIALS_FILE_ENV,
@@ -109,10 +109,9 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
 
 def _install_stop(stop: threading.Event) -> None:
-    # SIGHUP: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish
-    # without stopping the children.
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-        signal.signal(sig, lambda *_: stop.set())
+    """SIGTERM, SIGINT and SIGHUP set `stop` (services/stop_signals.py: without a deadlock
+    when they come in a burst)."""
+    stop_on_signals(stop)
 
 
 def _cmd_router(args: argparse.Namespace) -> int:

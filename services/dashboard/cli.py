@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
 )
@@ -34,8 +35,7 @@ def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
     """SIGTERM and SIGINT set `stop` while inside; the previous handlers come back after."""
     signals = (signal.SIGTERM, signal.SIGINT)
     previous = {sig: signal.getsignal(sig) for sig in signals}
-    for sig in signals:
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop, signals)
     try:
         yield
     finally:

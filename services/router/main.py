@@ -1,4 +1,4 @@
-"""Run a Zenoh router from a json5 config until SIGTERM or Ctrl-C.
+"""Run a Zenoh router from a json5 config until SIGTERM, SIGHUP or Ctrl-C.
 
 The same config file works with a stock `zenohd -c configs/zenoh/router.json5`.
 """
@@ -6,7 +6,6 @@ The same config file works with a stock `zenohd -c configs/zenoh/router.json5`.
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -14,6 +13,7 @@ from pathlib import Path
 import zenoh
 
 from robot_firmware.net.session import router_config
+from services.stop_signals import stop_on_signals
 
 log = logging.getLogger("swarm.router")
 
@@ -21,8 +21,7 @@ log = logging.getLogger("swarm.router")
 def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
     zenoh.init_log_from_env_or("error")
     stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     config = router_config(listen, config_file)
     try:
         session = zenoh.open(config)

@@ -1,0 +1,52 @@
+"""Stop a process's main loop on SIGTERM, SIGINT or SIGHUP without a deadlock.
+
+Every long-running process of the swarm (router, world, robots, dashboard, launcher) runs until
+a `threading.Event` is set, and used to set it straight from its signal handler.  A Python signal
+handler runs in the main thread between two bytecodes of whatever that thread was doing, and a
+second signal can interrupt the first handler.  `Event.set` takes the event's lock, which is not
+re-entrant: a handler that interrupts a `set` or a `wait` of the same event while it holds that
+lock waits for itself for ever.  Several SIGTERMs in a row are what a child of `swarm up` gets
+when the launcher is killed outright: the kernel sends the parent-death signal
+(services/launcher/orphans.py) each time the child is handed from one exiting thread of the
+launcher to the next, and a router so stopped was seen stuck in three nested handlers, ignoring
+every later SIGTERM.
+
+So the handler only notes the request (a plain attribute, no lock) and hands the `set` to a
+short thread of its own, which takes the lock once the main thread lets go of it; further
+signals find the request noted and return at once.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterable
+from types import FrameType
+
+STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+"""SIGHUP too: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish."""
+
+
+class StopOnSignal:
+    """A signal handler that sets `stop` once, from a thread of its own (module docstring)."""
+
+    def __init__(self, stop: threading.Event) -> None:
+        self.stop = stop
+        self.requested = False
+        """A stop signal came (set by the first; later ones change nothing)."""
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        if self.requested:
+            return
+        self.requested = True
+        threading.Thread(target=self.stop.set, name="stop-signal", daemon=True).start()
+
+
+def stop_on_signals(
+    stop: threading.Event, signals: Iterable[signal.Signals] = STOP_SIGNALS
+) -> StopOnSignal:
+    """Install a `StopOnSignal` for `stop` as the handler of each of `signals`."""
+    handler = StopOnSignal(stop)
+    for sig in signals:
+        signal.signal(sig, handler)
+    return handler
