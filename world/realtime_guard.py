@@ -208,92 +208,115 @@ class RealTimeGuard:
     def _seat_horizon_ns(self, answered: int) -> int:
         return self.tick_time_ns(answered + 1 + self.lead_periods)
 
+    def sim_times_ns(self, mono_ns: int, earlier_mono_ns: Sequence[int]) -> tuple[int, list[int]]:
+        """`sim_time_ns(mono_ns)`, and the simulation times of instants no later than
+        `mono_ns` (the arrivals of the acts a loop pass takes) as the clock ran up to it: the
+        wall clock as it ran before this reading, never past the time at `mono_ns`; an instant
+        before the last reading as `sim_time_ns` gives one.  While no answer comes in between,
+        that is what a reading at each instant in turn gives (tested), with one pass over the
+        seats for the whole loop pass instead of one per act (docs/scale.md, "The world's loop
+        at 18 robots")."""
+        offset_ns, last_mono_ns, sim_ns = self._offset_ns, self._last_mono_ns, self._sim_ns
+        now_ns = self.sim_time_ns(mono_ns)
+        earlier_ns = [
+            min(m - offset_ns, sim_ns if last_mono_ns is not None and m < last_mono_ns else now_ns)
+            for m in earlier_mono_ns
+        ]
+        return now_ns, earlier_ns
+
     def sim_time_ns(self, mono_ns: int) -> int:
         """The simulation time at wall time `mono_ns`: the wall clock, held back to the
         horizon.  A robot that has held the world for longer than the hold limit is no longer
         waited for.  An instant before the last one asked about gets the time it had then (or
-        the last time, if the clock was held since)."""
+        the last time, if the clock was held since).
+
+        The world's loop asks several times per control period, so this is one pass over the
+        seats, then a second over those that were waited for, with the horizons as plain
+        integers: in order, lapsed robots that caught up are waited for again, the robots that
+        hold the world (and lapse after the hold limit) are found, the horizon is taken, and
+        every seat's blind time is measured at the time given.  tests/world/guard_oracle.py
+        keeps the same steps one method each, as the specification this is tested against."""
         if self._last_mono_ns is not None and mono_ns < self._last_mono_ns:
             return min(self._sim_ns, mono_ns - self._offset_ns)
         self._last_mono_ns = mono_ns
-        self._readmit_caught_up()
+        period_ns = self.period_ns
+        # A seat that answered tick a may let simulated time run to horizon0_ns + a * period.
+        horizon0_ns = self._tick0_ns + (1 + self.lead_periods - self._tick0) * period_ns
+        sim_ns = self._sim_ns
         wanted_ns = mono_ns - self._offset_ns
-        blockers = self._blockers(wanted_ns, mono_ns)
-        horizon = self.horizon_ns()
-        if horizon is None or wanted_ns <= horizon:
-            self.holding = False
-            self._sim_ns = max(self._sim_ns, wanted_ns)
-            self._measure_blind_time()
-            return self._sim_ns
-        # Held: the wall time past the horizon is not simulated time; it moves the offset.
-        now_ns = max(horizon, self._sim_ns)
-        slip_ns = wanted_ns - now_ns
-        self._offset_ns += slip_ns
-        self.held_ns += slip_ns
-        if self._world_horizon_ns() == horizon:
-            self.world_behind_ns += slip_ns
-        for name in blockers:
-            self.seats[name].held_ns += slip_ns
-        if not self.holding:
-            self.holding = True
-            self.holds += 1
-            self._hold_started_mono_ns = mono_ns - slip_ns
-        assert self._hold_started_mono_ns is not None
-        self.longest_hold_ns = max(self.longest_hold_ns, mono_ns - self._hold_started_mono_ns)
-        self._sim_ns = now_ns
-        self._measure_blind_time()
-        return now_ns
-
-    def _measure_blind_time(self) -> None:
-        braked = self.braked()
+        world_ns = horizon0_ns + self._published * period_ns
+        enabled = self.enabled
+        # Lapsed robots that caught up are waited for again; the rest wait with their horizons.
+        waited: list[tuple[str, GuardSeat, int]] = []
+        binding_ns = min(world_ns, wanted_ns)
         for name, seat in self.seats.items():
-            if seat.live and seat.answered is not None and name not in braked:
-                blind_ns = self._sim_ns - self.tick_time_ns(seat.answered + 1)
-                seat.max_blind_ns = max(seat.max_blind_ns, blind_ns)
-
-    def _blockers(self, wanted_ns: int, mono_ns: int) -> list[str]:
-        """The waited-for robots that hold the world back from `wanted_ns` now (those whose
-        horizon binds, or lies behind the world's time); those that have done so for longer
-        than the hold limit lapse.  A robot is not to blame while the world's own lag binds
-        before its horizon does."""
-        horizons = {
-            name: self._seat_horizon_ns(seat.answered)
-            for name, seat in self.seats.items()
-            if self.enabled and seat.waited_for and seat.answered is not None
-        }
-        world_ns = self._world_horizon_ns()
-        binding_ns = max(min(*horizons.values(), world_ns, wanted_ns), self._sim_ns)
-        blockers = []
-        for name, seat in self.seats.items():
-            horizon = horizons.get(name)
-            if (
-                horizon is None
-                or horizon >= wanted_ns
-                or horizon > binding_ns
-                or horizon >= world_ns  # it has answered every tick the world published
-            ):
+            answered = seat.answered
+            if answered is None or not seat.live:
                 seat.blocked_since_mono_ns = None
                 continue
-            if seat.blocked_since_mono_ns is None:
+            horizon = horizon0_ns + answered * period_ns
+            if seat.lapsed and horizon >= sim_ns:
+                seat.lapsed = False
+            if not enabled or seat.exempt or seat.lapsed:
+                seat.blocked_since_mono_ns = None
+                continue
+            waited.append((name, seat, horizon))
+            if horizon < binding_ns:
+                binding_ns = horizon
+        binding_ns = max(binding_ns, sim_ns)
+        # Who holds the world back from `wanted_ns` now (their horizon binds, or lies behind
+        # the world's time), and not while the world's own lag binds before theirs does; those
+        # that have held it for longer than the hold limit lapse.
+        blockers: list[GuardSeat] = []
+        horizon_ns = world_ns
+        for name, seat, horizon in waited:
+            if horizon >= wanted_ns or horizon > binding_ns or horizon >= world_ns:
+                seat.blocked_since_mono_ns = None
+            elif seat.blocked_since_mono_ns is None:
                 seat.blocked_since_mono_ns = mono_ns
-            if mono_ns - seat.blocked_since_mono_ns > self.hold_limit_ns:
+            elif mono_ns - seat.blocked_since_mono_ns > self.hold_limit_ns:
                 seat.lapsed = True
                 seat.lapses += 1
                 seat.blocked_since_mono_ns = None
                 self.new_lapses.append((name, seat.answered))
                 continue
-            blockers.append(name)
-        return blockers
-
-    def _readmit_caught_up(self) -> None:
+            if seat.blocked_since_mono_ns is not None:
+                blockers.append(seat)
+            if horizon < horizon_ns:
+                horizon_ns = horizon
+        if not enabled or wanted_ns <= horizon_ns:
+            self.holding = False
+            now_ns = self._sim_ns = max(sim_ns, wanted_ns)
+        else:
+            # Held: the wall time past the horizon is not simulated time; it moves the offset.
+            now_ns = max(horizon_ns, sim_ns)
+            slip_ns = wanted_ns - now_ns
+            self._offset_ns += slip_ns
+            self.held_ns += slip_ns
+            if world_ns == horizon_ns:
+                self.world_behind_ns += slip_ns
+            for seat in blockers:
+                seat.held_ns += slip_ns
+            if not self.holding:
+                self.holding = True
+                self.holds += 1
+                self._hold_started_mono_ns = mono_ns - slip_ns
+            assert self._hold_started_mono_ns is not None
+            self.longest_hold_ns = max(self.longest_hold_ns, mono_ns - self._hold_started_mono_ns)
+            self._sim_ns = now_ns
+        # How long each robot's body has driven on a command that had not seen it.  A braked
+        # one (lapsed, not exempt, guard on) is not driving.
+        blind0_ns = now_ns - self._tick0_ns - (1 - self._tick0) * period_ns
         for seat in self.seats.values():
+            answered = seat.answered
             if (
-                seat.lapsed
+                answered is not None
                 and seat.live
-                and seat.answered is not None
-                and self._seat_horizon_ns(seat.answered) >= self._sim_ns
+                and not (enabled and seat.lapsed and not seat.exempt)
+                and blind0_ns - answered * period_ns > seat.max_blind_ns
             ):
-                seat.lapsed = False
+                seat.max_blind_ns = blind0_ns - answered * period_ns
+        return now_ns
 
     # -- the robots' side ------------------------------------------------------------------
 

@@ -380,7 +380,7 @@ class WorldProcess:
         self.unknown_senders = 0
         self.spoofed_frames = 0
         """Frames from robotN's transmitter that claim another sender id (dropped)."""
-        self._catch_up: Callable[[int], None] | None = None
+        self._catch_up: Callable[[int, int], None] | None = None
         self._held_frames: list[tuple[int, bytes]] = []
         self._engine_lock = threading.Lock()
         """Real time: held by the main loop while it is awake and by the radio relay while it
@@ -608,18 +608,29 @@ class WorldProcess:
         # up to its arrival, and on a starved machine acts can come faster than that, which
         # would hold the loop here with no sense tick going out.  Later acts wait for the next
         # pass, as acts that come while the loop sleeps do.
+        acts: list[tuple[str, bytes, int]] = []
         for _ in range(self._acts.qsize()):
             try:
-                robot, raw, arrival = self._acts.get_nowait()
+                acts.append(self._acts.get_nowait())
             except queue.Empty:
                 break
+        limit_ns, arrivals_ns = 0, [0] * len(acts)
+        if acts and self._catch_up is not None:
+            # The clock, read once for the pass (every act in it came before this instant).
+            # A grid step that does not divide the period must not carry the physics past
+            # the next sense tick, nor past the clock.
+            clock_ns, arrivals_ns = self.guard.sim_times_ns(
+                time.monotonic_ns(), [arrival for _, _, arrival in acts]
+            )
+            limit_ns = min(clock_ns, self.next_sense_ns)
+        for (robot, raw, arrival), arrival_ns in zip(acts, arrivals_ns, strict=True):
             i = self.index.get(robot)
             act = parse_act(raw) if i is not None else WireDropReason.UNKNOWN_ROBOT
             self.act_counters.count(act)
             if i is None or isinstance(act, WireDropReason):
                 continue
             if self._catch_up is not None:
-                self._catch_up(arrival)  # the old duty held until this act arrived
+                self._catch_up(arrival_ns, limit_ns)  # the old duty held until this act came
             self._apply_act(i, act, arrival)
         if self.config.lockstep:
             # Deterministic order within one step: by sender index, then arrival.
@@ -1168,14 +1179,10 @@ class WorldProcess:
             step = min(MAX_PHYSICS_STEP_NS, sim_ns - self.engine.t_ns)
             self.engine.advance(self._braked_duty(), step)
 
-    def _catch_up_with_act(self, arrival_mono_ns: int) -> None:
-        """Real time: the physics up to when an act that came at `arrival_mono_ns` changes its
-        duty (`act_effect_ns` on the `act_grid_ms` grid), before `_drain` applies it."""
-        now_mono = time.monotonic_ns()
-        arrival_ns = self.guard.sim_time_ns(min(arrival_mono_ns, now_mono))
-        # A grid step that does not divide the period must not carry the physics past the
-        # next sense tick, nor past the clock.
-        limit_ns = min(self.guard.sim_time_ns(now_mono), self.next_sense_ns)
+    def _catch_up_with_act(self, arrival_ns: int, limit_ns: int) -> None:
+        """Real time: the physics up to when an act that came at simulation time `arrival_ns`
+        changes its duty (`act_effect_ns` on the `act_grid_ms` grid, not past `limit_ns`),
+        before `_drain` applies it."""
         self._advance_physics_to(act_effect_ns(arrival_ns, limit_ns, self._act_grid_ns))
 
     def _publish_truth(self, truth_pub: zenoh.Publisher) -> None:

@@ -67,8 +67,8 @@ def test_a_late_drained_act_is_applied_after_the_physics_caught_up_to_its_arriva
     world = world_of(lockstep=False)
     seen: list[tuple[int, tuple[float, ...]]] = []
 
-    def catch_up(arrival_mono_ns: int) -> None:  # what `_run_realtime` installs
-        seen.append((arrival_mono_ns, tuple(world.duty[:, 0])))
+    def catch_up(arrival_ns: int, limit_ns: int) -> None:  # what `_run_realtime` installs
+        seen.append((arrival_ns, tuple(world.duty[:, 0])))
 
     world._catch_up = catch_up
     for robot, duty in (("robot1", 0.25), ("robot3", 0.75), ("robot1", 0.5)):
@@ -87,7 +87,7 @@ def test_a_drain_takes_only_the_acts_queued_when_it_began() -> None:
     world = world_of(lockstep=False)
     caught_up = 0
 
-    def catch_up(arrival_mono_ns: int) -> None:
+    def catch_up(arrival_ns: int, limit_ns: int) -> None:
         nonlocal caught_up
         caught_up += 1
         if caught_up <= 1000:  # every catch-up outlasts the next act's arrival

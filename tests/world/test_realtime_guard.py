@@ -270,6 +270,29 @@ def test_an_earlier_instant_gets_no_later_time() -> None:
     assert guard.sim_time_ns(35 * MS) == 35 * MS  # an act that arrived at 35 ms
 
 
+def test_one_reading_for_a_pass_maps_its_acts_as_a_reading_per_act_would() -> None:
+    """`sim_times_ns`: the time now and the arrivals' times, as readings at each arrival and
+    then now give them while no answer comes in between."""
+    for arrivals_ms, now_ms in (([31, 36, 38], 39), ([35], 70), ([45, 60, 90], 95)):
+        one, each = running_guard(), running_guard()
+        for guard in (one, each):
+            publish_through(guard, 2)
+            for name in ROBOTS:
+                guard.answer(name, 2)
+            assert guard.sim_time_ns(30 * MS) == 30 * MS
+        now_ns, arrivals_ns = one.sim_times_ns(now_ms * MS, [m * MS for m in arrivals_ms])
+        assert arrivals_ns == [each.sim_time_ns(m * MS) for m in arrivals_ms]
+        assert now_ns == each.sim_time_ns(now_ms * MS)
+        assert one.holding == each.holding and one.held_ns == each.held_ns
+    # Answers up to tick 2 with a lead of one period: held at 40 ms, so an act that came at
+    # 60 ms wall time came at 40 ms of simulated time, and so did the pass.
+    assert (now_ns, arrivals_ns) == (40 * MS, [40 * MS, 40 * MS, 40 * MS])
+    # An instant before the last reading, as a reading of it would give it; never later.
+    earlier = one.sim_times_ns(96 * MS, [20 * MS, 95 * MS])[1]
+    assert earlier == [each.sim_time_ns(20 * MS), each.sim_time_ns(95 * MS)]
+    assert earlier[0] <= 20 * MS and earlier[1] == 40 * MS
+
+
 @pytest.mark.parametrize(
     ("period_ns", "hold_limit_ns", "lead"), [(0, MS, 1), (PERIOD_NS, 0, 1), (PERIOD_NS, MS, -1)]
 )
