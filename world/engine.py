@@ -7,12 +7,12 @@ back what the motor pins carry (PWM duty per wheel).  It is also the radio mediu
 opaque bytes, delivered to every other robot after the link's delay, or dropped.
 
 The engine is the stateful shell around the batched world step of `world.step` with an empty
-batch shape: `sense` is `sense_world`, `advance` is `step_world` with no senders, and
-`transmit` is the step's radio half (`broadcast`) for one sender, because frames reach the world
-whenever a robot sends one.  The batch simulator calls the same functions, so a live run and
-`swarm sim` share physics, sensors, radio draws and noise streams, and the metrics are the same
-`MetricsAccumulator`.  Time advances only through `advance(duty, dt_ns)`; randomness comes from
-a generator seeded by the scenario.
+batch shape: `sense` is `sense_world`, `advance` is `step_world` with no senders (in its
+one-world form, `move_world`), and `transmit` is the step's radio half (`broadcast`) for one
+sender, because frames reach the world whenever a robot sends one.  The batch simulator calls
+the same functions, so a live run and `swarm sim` share physics, sensors, radio draws and noise
+streams, and the metrics are the same `MetricsAccumulator`.  Time advances only through
+`advance(duty, dt_ns)`; randomness comes from a generator seeded by the scenario.
 
 Network faults (per-link profiles, partitions; world/faults.py) are the engine's too: the radio
 draws each frame from them while one is active (`apply_network_fault`).
@@ -43,13 +43,12 @@ from world.metrics import FormationLayout, MetricsAccumulator
 from world.physics import BodyState
 from world.radio import RowDraw
 from world.step import (
-    WorldInputs,
     WorldNoise,
     WorldParams,
     WorldState,
     broadcast,
+    move_world,
     sense_world,
-    step_world,
 )
 
 FloatArray = NDArray[np.float64]
@@ -200,8 +199,7 @@ class WorldEngine:
     def advance(self, duty: FloatArray, dt_ns: int) -> None:
         """Step the bodies by dt_ns with the given duties (N, 4); record metrics on schedule."""
         self.record_metrics()
-        inputs = WorldInputs(duty=np.asarray(duty, dtype=np.float64), dt_s=dt_ns / NS_PER_S)
-        self.state, _ = step_world(self.state, inputs, self.params, self.noise)
+        self.state = move_world(self.state, duty, dt_ns / NS_PER_S, self.params, self.noise)
         self.t_ns += dt_ns
 
     def transmit(self, sender: int, payload: bytes) -> None:

@@ -330,6 +330,56 @@ _contact_rows_serial = _make_contact_rows(parallel=False)
 _contact_rows_parallel = _make_contact_rows(parallel=True)
 
 
+@njit(cache=True)
+def move_one_world(
+    pose: FloatArray,
+    wheel_speed_radps: FloatArray,
+    wheel_angle_rad: FloatArray,
+    slip: FloatArray,
+    duty: FloatArray,
+    slip_noise: FloatArray,
+    dt_s: float,
+    body: tuple[float, float, float, float, float, float],
+    body_radius_m: float,
+    obstacle_centres_m: FloatArray,
+    obstacle_radii_m: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]:
+    """One world's N bodies (rows) over dt_s with their duties held, then pushed apart: what
+    `step_bodies` then `resolve_contacts` give for one world, in one call (the world process
+    steps its bodies at every act it takes).  Returns the new pose, wheel speeds, wheel angles
+    and slips, and the contacts (N, N + M): robot-robot, then robot-obstacle."""
+    n = pose.shape[0]
+    m = obstacle_radii_m.shape[0]
+    pose_out = np.empty((n, 3))
+    speed_out = np.empty((n, 4))
+    angle_out = np.empty((n, 4))
+    slip_out = np.empty((n, 4))
+    advance_bodies(
+        0, n, pose, wheel_speed_radps, wheel_angle_rad, slip, duty, slip_noise, dt_s, body,
+        pose_out, speed_out, angle_out, slip_out,
+    )  # fmt: skip
+    positions = np.empty((n, 2))
+    for i in range(n):
+        positions[i, 0] = pose_out[i, 0]
+        positions[i, 1] = pose_out[i, 1]
+    corrected = np.empty((n, 2))
+    robot_robot = np.empty((n, n), dtype=np.bool_)
+    robot_obstacle = np.empty((n, m), dtype=np.bool_)
+    push_apart(
+        positions, body_radius_m, obstacle_centres_m, obstacle_radii_m, corrected,
+        robot_robot, robot_obstacle,
+    )  # fmt: skip
+    contacts = np.empty((n, n + m), dtype=np.bool_)
+    for i in range(n):
+        pose_out[i, 0] = corrected[i, 0]
+        pose_out[i, 1] = corrected[i, 1]
+        for j in range(n):
+            contacts[i, j] = robot_robot[i, j]
+        for j in range(m):
+            contacts[i, n + j] = robot_obstacle[i, j]
+    return pose_out, speed_out, angle_out, slip_out, contacts
+
+
 def resolve_contacts(
     positions_m: FloatArray,
     body_radius_m: float,

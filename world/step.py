@@ -40,7 +40,14 @@ from swarm_config.body import BodyParams
 from swarm_config.radio import LinkProfile
 from swarm_config.scenario import Scenario
 from swarm_config.sensors import PositioningParams, SonarParams
-from world.physics import BodyState, encoder_counts, resolve_contacts, step_bodies
+from world.physics import (
+    BodyState,
+    body_constants,
+    encoder_counts,
+    move_one_world,
+    resolve_contacts,
+    step_bodies,
+)
 from world.radio import LinkTable, draw_links
 from world.sensors import pose_fix, sonar_gaps
 
@@ -266,3 +273,33 @@ def step_world(
     bodies = replace(bodies, pose=pose)
     contacts = np.concatenate((report.robot_robot, report.robot_obstacle), axis=-1)
     return replace(state, bodies=bodies, contacts=contacts), fates
+
+
+def move_world(
+    state: WorldState, duty: FloatArray, dt_s: float, params: WorldParams, noise: WorldNoise
+) -> WorldState:
+    """`step_world` of one world (batch shape ()) with no senders and one physics sub-step:
+    the bodies move for dt_s with the duty held and collide, in one compiled call
+    (`world.physics.move_one_world`) instead of the batched functions' layout and wrapping.
+    The world engine steps its bodies this way at every act it takes; the numbers and the
+    slip draws are `step_world`'s, bit for bit (tests/world/test_step.py)."""
+    bodies = state.bodies
+    body = params.body
+    pose, speed, angle, slip, contacts = move_one_world(
+        bodies.pose,
+        bodies.wheel_speed_radps,
+        bodies.wheel_angle_rad,
+        bodies.slip,
+        np.asarray(duty, dtype=np.float64),
+        noise.slip.standard_normal((state.robot_count, 4)),
+        float(dt_s),
+        body_constants(body),
+        float(body.body_radius_m),
+        np.asarray(params.obstacle_centres_m, dtype=np.float64).reshape(-1, 2),
+        np.asarray(params.obstacle_radii_m, dtype=np.float64).reshape(-1),
+    )
+    return WorldState(
+        bodies=BodyState(pose=pose, wheel_speed_radps=speed, wheel_angle_rad=angle, slip=slip),
+        link_bad=state.link_bad,
+        contacts=contacts,
+    )

@@ -18,6 +18,7 @@ from world.step import (
     WorldParams,
     WorldState,
     broadcast,
+    move_world,
     sense_world,
     step_world,
 )
@@ -234,3 +235,36 @@ def test_links_longer_than_the_radio_range_carry_nothing_in_every_run_of_a_batch
     _, fates = broadcast(state, np.array([0, 1]), params, noise)
     expected = [[False, True, False], [True, False, False]]
     np.testing.assert_array_equal(fates.delivered, np.broadcast_to(expected, (4, 2, 3)))
+
+
+def test_one_world_moved_in_one_call_is_step_world_bit_for_bit() -> None:
+    """`move_world` (the world engine's step) against `step_world` with no senders: the same
+    poses, wheel states, slips, slip draws and contacts, with robots driven into each other and
+    into the obstacle so that contacts and pushes happen."""
+    params, pose = _paper_params()
+    n = pose.shape[0]
+    # Everyone drives at the first obstacle, and robot2 onto robot1's spot.
+    obstacle = params.obstacle_centres_m[0]
+    start = np.array(pose, dtype=np.float64)
+    start[:, :2] = obstacle + np.array([[-0.3, 0.0], [0.3, 0.05], [0.0, -0.31]])
+    start[1, :2] = start[0, :2] + [0.05, 0.0]
+    rng = np.random.default_rng(11)
+    states = [WorldState.at_rest(start.copy()), WorldState.at_rest(start.copy())]
+    noises = [WorldNoise.spawn(np.random.default_rng(3)) for _ in states]
+    touched = 0
+    for _ in range(200):
+        duty = rng.uniform(-1.0, 1.0, (n, 4))
+        dt_s = float(rng.choice((0.0005, 0.001, 0.01)))
+        states[0], _ = step_world(states[0], WorldInputs(duty, dt_s), params, noises[0])
+        states[1] = move_world(states[1], duty, dt_s, params, noises[1])
+        batched, one = states
+        for field_name in ("pose", "wheel_speed_radps", "wheel_angle_rad", "slip"):
+            np.testing.assert_array_equal(
+                getattr(one.bodies, field_name), getattr(batched.bodies, field_name)
+            )
+        assert one.contacts is not None and batched.contacts is not None
+        np.testing.assert_array_equal(one.contacts, batched.contacts)
+        np.testing.assert_array_equal(one.link_bad, batched.link_bad)
+        touched += int(one.contacts.any())
+    assert touched > 0
+    assert noises[0].slip.standard_normal() == noises[1].slip.standard_normal()
