@@ -202,8 +202,10 @@ class WorldEngine:
         self.state = move_world(self.state, duty, dt_ns / NS_PER_S, self.params, self.noise)
         self.t_ns += dt_ns
 
-    def transmit(self, sender: int, payload: bytes) -> None:
-        """A robot broadcasts `payload` now; each other robot gets it after its link's delay.
+    def transmit(self, sender: int, payload: bytes, sent_ns: int | None = None) -> None:
+        """A robot broadcasts `payload` at simulation time `sent_ns` (default: the engine's
+        time); each other robot gets it after its link's delay.  The real-time world sends at
+        its clock, which runs ahead of the physics between the steps it takes.
 
         With one profile for every link and no range (no network fault: the common case) the
         links are drawn by `RowDraw`, which gives `broadcast`'s fates with a fraction of its
@@ -224,6 +226,7 @@ class WorldEngine:
                 self.state, np.array([sender], dtype=np.int64), params, self.noise
             )
             delivered, delays_s = fates.delivered[0], fates.delay_s[0]
+        sent_ns = self.t_ns if sent_ns is None else sent_ns
         for receiver in range(self.robot_count):
             if receiver == sender:
                 continue
@@ -234,11 +237,11 @@ class WorldEngine:
             heapq.heappush(
                 self._queue,
                 _Frame(
-                    arrival_ns=self.t_ns + round(float(delays_s[receiver]) * NS_PER_S),
+                    arrival_ns=sent_ns + round(float(delays_s[receiver]) * NS_PER_S),
                     order=self._order,
                     receiver=receiver,
                     sender=sender,
-                    sent_ns=self.t_ns,
+                    sent_ns=sent_ns,
                     payload=payload,
                 ),
             )
@@ -247,10 +250,12 @@ class WorldEngine:
         """When the next queued frame arrives (simulation ns), or None."""
         return self._queue[0].arrival_ns if self._queue else None
 
-    def due_frames(self) -> list[tuple[int, int, bytes]]:
-        """Frames that have arrived by now, as (receiver, sender, payload), oldest first."""
+    def due_frames(self, until_ns: int | None = None) -> list[tuple[int, int, bytes]]:
+        """Frames that have arrived by simulation time `until_ns` (default: the engine's
+        time), as (receiver, sender, payload), oldest first."""
+        until_ns = self.t_ns if until_ns is None else until_ns
         out = []
-        while self._queue and self._queue[0].arrival_ns <= self.t_ns:
+        while self._queue and self._queue[0].arrival_ns <= until_ns:
             frame = heapq.heappop(self._queue)
             self.radio.delivered += 1
             self.radio.latencies_ns.append(frame.arrival_ns - frame.sent_ns)

@@ -669,22 +669,36 @@ class WorldProcess:
 
     def _pass_frames_on(self) -> None:
         """Real time, under the engine's lock: every frame queued so far, in arrival order,
-        drawn on its links, and the frames due now put on their receivers' keys."""
-        frames = self._queued_frames()
-        for j, payload in frames:
-            self.engine.transmit(j, payload)
-        if frames:
-            self._deliver_radio()
+        sent on its links at the world's clock, and every frame due by the clock put on its
+        receiver's key."""
+        now_ns = self._radio_clock_ns()
+        for j, payload in self._queued_frames():
+            self.engine.transmit(j, payload, now_ns)
+        self._deliver_radio(now_ns)
+
+    def _radio_clock_ns(self) -> int:
+        """Real time: the simulation time now (the starvation guard's clock), by which the
+        radio medium sends and delivers frames; the engine's time before the clock starts."""
+        if not self._time_started:
+            return self.engine.t_ns
+        return max(self.engine.t_ns, self.guard.sim_time_ns(time.monotonic_ns()))
 
     def _relay_frames(self) -> None:
         """Real time: the radio medium's own thread.  While the main loop sleeps, frames are
-        drawn and, on a link with no delay, put on their receivers' keys as soon as they come,
-        instead of when the main loop next wakes (docs/scale.md, "The radio hop").  Frames are
-        taken from the queue only under the engine's lock, by this thread or by the main loop
-        when it is awake (`_drain`), so they leave in arrival order and a busy main loop passes
-        them on itself.  A frame with a delay is queued in the engine and the main loop, woken
-        to look at its new due time, delivers it.  The subscriber's callback never waits for
-        the lock.  Ends when `run` sets `_relay_stopping`."""
+        drawn as soon as they come and, on a link with no delay, put on their receivers' keys
+        at once, instead of when the main loop next wakes (docs/scale.md, "The radio hop").
+        A frame with a delay waits in the engine's queue and leaves with the first pass of the
+        medium at or after its due time, at the latest with the next sense message, as in
+        lockstep: a robot takes its frames when it runs its control tick, which the sense
+        message starts, so it sees each frame at the same tick as if it had come at its due
+        time (unless that tick had begun before).  Nothing wakes for a frame's due time: on a
+        link with a delay each frame to each robot has its own, and a pass of the world's loop
+        per due time was more than half of the loop's work at 18 robots (docs/scale.md, "The
+        world's loop at 18 robots").  Frames are taken from the queue and
+        delivered only under the engine's lock, by this thread or by the main loop when it is
+        awake (`_drain`), so they leave in arrival order and a busy main loop passes them on
+        itself.  The subscriber's callback never waits for the lock.  Ends when `run` sets
+        `_relay_stopping`."""
         while True:
             self._frames_queued.wait()
             with self._engine_lock:
@@ -699,8 +713,6 @@ class WorldProcess:
                     self.stop.set()
                     self._wake.set()
                     return
-                if self.engine.next_frame_due_ns() is not None:
-                    self._wake.set()
 
     def _on_liveliness(self, name: str, alive: bool) -> None:
         if name not in self.index:
@@ -884,10 +896,11 @@ class WorldProcess:
             publisher.put(payload)
         self._sense_sent_mono_ns = time.monotonic_ns()
 
-    def _deliver_radio(self) -> list[int]:
-        """Put every frame due by the engine's time on its receiver's `radio/rx` key."""
+    def _deliver_radio(self, until_ns: int | None = None) -> list[int]:
+        """Put every frame due by simulation time `until_ns` (default: the engine's time) on
+        its receiver's `radio/rx` key; how many each robot got."""
         delivered = [0] * len(self.names)
-        for receiver, _sender, payload in self.engine.due_frames():
+        for receiver, _sender, payload in self.engine.due_frames(until_ns):
             self._rx_publishers[receiver].put(payload)
             delivered[receiver] += 1
         return delivered
@@ -1085,7 +1098,8 @@ class WorldProcess:
         (world/realtime_guard.py): never more than `starvation_lead_periods` control periods
         beyond the period the slowest live robot has answered.  While it is held, the newest
         sense messages are repeated every period.  The physics is integrated exactly from event
-        to event (an act changes a duty, a frame falls due, a sense message is due):
+        to event (an act changes a duty, a sense message is due; frames are the radio thread's,
+        `_relay_frames`, and never wake this loop):
         `step_bodies` is exact for a held duty, so with the default `act_grid_ms` of 1 this
         equals a 1 kHz loop without its cost: the acts that came within one millisecond change
         their duties together, at its end, in one physics step instead of one each.
@@ -1109,9 +1123,6 @@ class WorldProcess:
         try:
             while not self.stop.is_set() and (end is None or self.tick < end):
                 due = self.next_sense_ns
-                frame_due = self.engine.next_frame_due_ns()
-                if frame_due is not None:
-                    due = min(due, frame_due)
                 mono = time.monotonic_ns()
                 now_sim = guard.sim_time_ns(mono)
                 if now_sim < due and not (guard.holding and not self._acts.empty()):
@@ -1125,11 +1136,10 @@ class WorldProcess:
                     finally:
                         self._engine_lock.acquire()
                     self._wake.clear()
+                # Frames due by the clock leave in the drain, before the physics catches up
+                # with the clock: a frame's hop through the world does not wait for a physics
+                # step.
                 self._drain()
-                # Frames due by the engine's time (all of them on an ideal link) leave before
-                # the physics catches up with the clock: a frame's hop through the world does
-                # not wait for a physics step.
-                self._deliver_radio()
                 mono = time.monotonic_ns()
                 now_sim = guard.sim_time_ns(mono)
                 if now_sim >= self.next_sense_ns:
@@ -1154,7 +1164,6 @@ class WorldProcess:
                     self._checkpoint_if_due()
                 else:
                     self._advance_physics_to(now_sim)
-                    self._deliver_radio()
                     if guard.holding and mono >= self._sense_sent_mono_ns + self.period_ns:
                         self._repeat_sense()
                 while guard.new_lapses:

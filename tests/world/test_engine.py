@@ -54,6 +54,19 @@ def test_frames_are_never_delivered_to_their_sender_and_arrive_after_the_delay()
     assert sorted(engine.due_frames()) == [(0, 1, b"hello"), (2, 1, b"hello")]
 
 
+def test_a_frame_sent_at_the_clock_is_due_its_delay_later_without_a_physics_step() -> None:
+    """The real-time world sends and delivers frames at its clock, which runs ahead of the
+    physics between steps: the delay counts from the time given, and `due_frames` takes any
+    time, not only the engine's."""
+    engine = _engine(LinkProfile(latency_ms=30.0))
+    engine.transmit(1, b"hello", sent_ns=7_000_000)
+    assert engine.next_frame_due_ns() == 37_000_000
+    assert engine.due_frames(36_999_999) == []
+    assert sorted(engine.due_frames(37_000_000)) == [(0, 1, b"hello"), (2, 1, b"hello")]
+    assert engine.t_ns == 0
+    assert engine.radio.latency_percentile_ms(50) == 30.0
+
+
 def test_sense_messages_carry_encoders_sonar_and_fixes_on_schedule() -> None:
     engine = _engine("ideal")
     first = engine.sense()

@@ -89,20 +89,36 @@ def test_the_relay_thread_passes_frames_on_only_under_the_engine_lock() -> None:
     assert not relay.is_alive()
 
 
-def test_a_delayed_frame_waits_in_the_engine_and_wakes_the_main_loop() -> None:
+def test_a_delayed_frame_leaves_with_the_first_pass_after_its_due_time_and_wakes_nothing() -> None:
+    """On a link with a delay the relay draws the frame when it comes and leaves it in the
+    engine's queue; nothing wakes for its due time.  It leaves with the medium's first pass at
+    or after that time (a drain of the main loop here), at the latest with the next sense
+    message, with the delay it was drawn."""
     world, delivered = real_time_world(b'{"latency_ms": 40.0, "jitter_ms": 0.0, "loss": 0.0}')
+    world.guard.start(0, 0, 0, time.monotonic_ns())  # the clock runs, as `_run_realtime` starts it
+    world.guard.published(1_000)  # and its own sense ticks do not hold it
+    world._time_started = True
     relay = threading.Thread(target=world._relay_frames, daemon=True)
     relay.start()
     world._wake.clear()
     queue_frame(world, "robot1", frame(0, 9))
-    assert world._wake.wait(10.0)  # to look at the frame's due time
-    with world._engine_lock:
-        assert delivered == []
-        assert world.engine.next_frame_due_ns() == 40_000_000
-        world.engine.advance(world.duty, 40_000_000)
-        world._deliver_radio()
+    wait_for(lambda: world.engine.radio.sent == 1 or None, 10.0, 0.005, "the frame drawn")
+    time.sleep(0.1)  # past its due time, with no pass of the medium
+    assert delivered == []
+    assert not world._wake.is_set()
+    with world._engine_lock:  # the main loop wakes (for anything) and drains
+        world._drain()
+        assert delivered == [("robot2", 9), ("robot3", 9)]
+        # The next one leaves with the sense message at the first tick past its due time.
+        world._frames.put(("robot3", frame(2, 10)))
+        world._pass_frames_on()
+        due_ns = world.engine.next_frame_due_ns()
+        assert due_ns is not None and delivered[2:] == []
+        world.engine.advance(world.duty, due_ns - world.engine.t_ns)
+        assert world._deliver_radio() == [1, 1, 0]  # what `_publish_sense` announces
+        assert delivered[2:] == [("robot1", 10), ("robot2", 10)]
         world._relay_stopping = True
-    assert delivered == [("robot2", 9), ("robot3", 9)]
+    assert world.engine.radio.latency_percentile_ms(50) == 40.0
     world._frames_queued.set()
     relay.join(timeout=10.0)
     assert not relay.is_alive()
