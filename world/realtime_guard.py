@@ -227,8 +227,9 @@ class RealTimeGuard:
     def sim_time_ns(self, mono_ns: int) -> int:
         """The simulation time at wall time `mono_ns`: the wall clock, held back to the
         horizon.  A robot that has held the world for longer than the hold limit is no longer
-        waited for.  An instant before the last one asked about gets the time it had then (or
-        the last time, if the clock was held since).
+        waited for.  An instant before the last one asked about gets the wall clock less the
+        offset as it stands now, never later than the last time: the time it had then, unless
+        the clock was held since, in which case an earlier one.
 
         The world's loop asks several times per control period, so this is one pass over the
         seats, then a second over those that were waited for, with the horizons as plain
