@@ -129,6 +129,28 @@ class WorldEngine:
         self._row_draw: RowDraw | None = None
         """The draw of one frame's links while they share the profile `link` (`transmit`)."""
 
+    def compile_kernels(self) -> None:
+        """Run the compiled kernels the engine steps with once each, on scratch copies: the
+        first call of a kernel in a process compiles it, or loads it from numba's cache, and
+        after an install or an edit of their sources compiling them takes seconds, which the
+        world must spend before its clock starts, not at its first sense tick.  Nothing of the
+        engine changes: not its state, time, noise streams, radio nor metrics."""
+        scratch = WorldNoise.spawn(np.random.default_rng(0))
+        state = self.state
+        sense_world(state, self.params, scratch, fix_due=True, sonar_due=True)
+        moved = move_world(state, np.zeros((self.robot_count, 4)), 1e-3, self.params, scratch)
+        RowDraw(self.params.link, self.robot_count)(state.link_bad[0], scratch.radio)
+        metrics = MetricsAccumulator(
+            (),
+            FormationLayout.from_scenario(self.scenario),
+            self.params.obstacle_centres_m,
+            self.params.obstacle_radii_m,
+            self.scenario.metrics_config(),
+        )
+        reference, _ = self.trajectory.evaluate(0.0)
+        for contacts in (None, moved.contacts):  # before the first step, and after it
+            metrics.update(0.0, moved.bodies.pose, reference, contacts)
+
     @property
     def t_s(self) -> float:
         return self.t_ns / NS_PER_S

@@ -67,6 +67,35 @@ def test_a_frame_sent_at_the_clock_is_due_its_delay_later_without_a_physics_step
     assert engine.radio.latency_percentile_ms(50) == 30.0
 
 
+def test_compiling_the_kernels_changes_nothing_the_engine_does() -> None:
+    """`compile_kernels` runs on scratch copies and a scratch generator: an engine that ran it
+    senses, steps, sends frames and takes metrics exactly as one that did not."""
+    engines = [_engine("lab"), _engine("lab")]
+    engines[0].compile_kernels()
+    duty = np.linspace(-0.6, 0.9, 12).reshape(3, 4)
+    for k in range(300):
+        seen = []
+        for engine in engines:
+            if k % 7 == 0:
+                engine.transmit(k % 3, bytes([k % 256]) * 16)
+            pins = engine.sense_pins()
+            engine.advance(duty, 10_000_000)
+            seen.append(
+                (
+                    pins.encoder_counts.tolist(),
+                    None if pins.fix_pose is None else pins.fix_pose.tolist(),
+                    np.nan_to_num(pins.echo_times_s, nan=-1.0).tolist(),
+                    engine.bodies.pose.tolist(),
+                    engine.bodies.slip.tolist(),
+                    engine.due_frames(),
+                )
+            )
+        assert seen[0] == seen[1]
+    first, second = (engine.metrics.summaries() for engine in engines)
+    assert first == second
+    assert engines[0].radio.sent == engines[1].radio.sent > 0
+
+
 def test_sense_messages_carry_encoders_sonar_and_fixes_on_schedule() -> None:
     engine = _engine("ideal")
     first = engine.sense()
