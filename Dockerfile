@@ -83,8 +83,7 @@ from services.sim.batch import run_batch; \
 from swarm_config.scenario import load_scenario; \
 scenario = load_scenario(Path("configs/scenarios/paper.yaml")); \
 [run_batch(scenario, batch_size=b, duration_s=0.1) for b in (1, 30)]; \
-import numpy; from world.engine import WorldEngine; engine = WorldEngine(scenario); \
-engine.advance(numpy.zeros((engine.robot_count, 4)), 1000000); \
+from world.engine import WorldEngine; WorldEngine(scenario).compile_kernels(); \
 print("compiled the control and body kernels into the numba cache")'; \
     if command -v cc > /dev/null; then \
         SWARM_KERNELS=jit python -m robot_firmware.control.aot; \
