@@ -16,13 +16,25 @@ certificate for HOST (swarm_config/tls.py): the CA certificate given as `tls_roo
 the file named by `$SWARM_TLS_ROOT_CA` (`transport/link/tls/root_ca_certificate`), else one
 its config file names.  `open_client` refuses a `tls/` endpoint with none of them at once
 (`TlsError`): zenoh would otherwise keep retrying a router it can never trust.
+
+Every process runs Zenoh's work on fewer threads than Zenoh's default, unless `$ZENOH_RUNTIME`
+already says how.  By default Zenoh gives a process five runtimes of one or two threads each
+(app, acc, tx, rx, net), and a message wakes two or three of them in turn; a robot or the world
+handles a few hundred small messages a second, and on two cores those hand-overs between
+threads cost more than the work (docs/scale.md, "Zenoh on one thread").  A client runs every
+runtime on the application runtime's one thread (`CLIENT_ZENOH_RUNTIME`).  The router runs
+every runtime on the receive runtime's two threads (`ROUTER_ZENOH_RUNTIME`): it forwards each
+message on the receive thread of the link it came on, and a forward to a congested link waits
+there, so on one thread a single cut link between hosts stalled every link of the router,
+lease checks included (tests/integration/test_multi_host.py); with two, the other goes on.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import zenoh
@@ -32,6 +44,35 @@ from swarm_config.tls import TLS_ROOT_CA_ENV, TlsError, root_ca_from_environment
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "zenoh"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+ZENOH_RUNTIME_ENV = "ZENOH_RUNTIME"
+"""Zenoh's own variable for its runtimes' threads (RON), read once, when a process's first
+session starts."""
+CLIENT_ZENOH_RUNTIME = (
+    "(rx: (handover: app), tx: (handover: app), acc: (handover: app), net: (handover: app))"
+)
+"""A client's Zenoh runtimes all handed over to the application runtime (one worker thread)."""
+ROUTER_ZENOH_RUNTIME = (
+    "(app: (handover: rx), tx: (handover: rx), acc: (handover: rx), net: (handover: rx))"
+)
+"""The router's Zenoh runtimes all handed over to the receive runtime (two worker threads)."""
+
+
+@contextmanager
+def zenoh_runtime_while_opening(setting: str) -> Iterator[None]:
+    """Within: $ZENOH_RUNTIME says `setting`, unless it was set already.
+
+    Zenoh reads the variable once, when the process's first session starts, so a session
+    opened within keeps that setting; afterwards the variable is gone again, and the processes
+    this one starts (the launcher opens a client, then may restart the router) inherit the
+    environment it had."""
+    if ZENOH_RUNTIME_ENV in os.environ:
+        yield
+        return
+    os.environ[ZENOH_RUNTIME_ENV] = setting
+    try:
+        yield
+    finally:
+        os.environ.pop(ZENOH_RUNTIME_ENV, None)
 
 
 def _load(path: Path | None, default_name: str) -> zenoh.Config:
@@ -108,7 +149,8 @@ def open_client(
             "its path (<credentials>/tls/ca.pem, written by `swarm credentials --tls` or "
             "`swarm up --tls`)"
         )
-    return zenoh.open(config)
+    with zenoh_runtime_while_opening(CLIENT_ZENOH_RUNTIME):
+        return zenoh.open(config)
 
 
 def split_endpoints(text: str) -> list[str]:

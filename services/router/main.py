@@ -12,7 +12,11 @@ from pathlib import Path
 
 import zenoh
 
-from robot_firmware.net.session import router_config
+from robot_firmware.net.session import (
+    ROUTER_ZENOH_RUNTIME,
+    router_config,
+    zenoh_runtime_while_opening,
+)
 from services.stop_signals import stop_on_signals
 
 log = logging.getLogger("swarm.router")
@@ -24,7 +28,8 @@ def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
     stop_on_signals(stop)
     config = router_config(listen, config_file)
     try:
-        session = zenoh.open(config)
+        with zenoh_runtime_while_opening(ROUTER_ZENOH_RUNTIME):
+            session = zenoh.open(config)
     except zenoh.ZError as exc:  # e.g. the port is taken: say so in one line, no traceback
         where = ", ".join(listen) if listen else "the config endpoints"
         log.error("cannot start the router on %s: %s", where, exc)

@@ -286,6 +286,39 @@ def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
     assert live_swarm.admin("status")["ok"]
 
 
+ZENOH_RUNTIME_THREAD_PREFIXES = ("app-", "acc-", "tx-", "rx-", "net-")
+"""How Zenoh names the threads of its runtimes (application, acceptor, transmit, receive,
+network)."""
+
+
+def _zenoh_runtime_threads(pid: int) -> list[str]:
+    names = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            name = (task / "comm").read_text().strip()
+        except (FileNotFoundError, ProcessLookupError):  # the thread ended meanwhile
+            continue
+        if name.startswith(ZENOH_RUNTIME_THREAD_PREFIXES):
+            names.append(name)
+    return sorted(names)
+
+
+def test_every_swarm_process_runs_zenoh_on_one_runtime(live_swarm: LiveSwarm) -> None:
+    """The world and each robot hand Zenoh's receive, transmit, acceptor and network runtimes
+    over to the application runtime, one thread; the router hands the others over to its
+    receive runtime, two threads, so that a forward waiting on a congested link leaves the
+    other thread to the rest (robot_firmware/net/session.py)."""
+    processes = live_swarm.all_running()["processes"]
+    live_swarm.wait_for(lambda: len(_world_status(live_swarm)["live"]) == len(ROBOTS))
+    threads = {name: _zenoh_runtime_threads(process["pid"]) for name, process in processes.items()}
+    assert set(threads) == {"router", "world", *ROBOTS}
+    for name in ("world", *ROBOTS):
+        assert "app-0" in threads[name], (name, threads[name])
+        assert all(thread.startswith("app-") for thread in threads[name]), (name, threads[name])
+    assert {"rx-0", "rx-1"} <= set(threads["router"]), threads["router"]
+    assert all(thread.startswith("rx-") for thread in threads["router"]), threads["router"]
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
