@@ -208,21 +208,116 @@ class RealTimeGuard:
     def _seat_horizon_ns(self, answered: int) -> int:
         return self.tick_time_ns(answered + 1 + self.lead_periods)
 
-    def sim_times_ns(self, mono_ns: int, earlier_mono_ns: Sequence[int]) -> tuple[int, list[int]]:
-        """`sim_time_ns(mono_ns)`, and the simulation times of instants no later than
-        `mono_ns` (the arrivals of the acts a loop pass takes) as the clock ran up to it: the
-        wall clock as it ran before this reading, never past the time at `mono_ns`; an instant
-        before the last reading as `sim_time_ns` gives one.  While no answer comes in between,
-        that is what a reading at each instant in turn gives (tested), with one pass over the
-        seats for the whole loop pass instead of one per act (docs/scale.md, "The world's loop
-        at 18 robots")."""
-        offset_ns, last_mono_ns, sim_ns = self._offset_ns, self._last_mono_ns, self._sim_ns
-        now_ns = self.sim_time_ns(mono_ns)
-        earlier_ns = [
-            min(m - offset_ns, sim_ns if last_mono_ns is not None and m < last_mono_ns else now_ns)
-            for m in earlier_mono_ns
-        ]
-        return now_ns, earlier_ns
+    def take_answers(
+        self, mono_ns: int, answers: Sequence[tuple[str, int, int]]
+    ) -> tuple[int, list[int]]:
+        """The acts a loop pass takes, each as (robot, tick it answered, wall instant it
+        arrived), in arrival order: what a reading of the clock at each arrival followed by
+        that robot's `answer`, then a reading at `mono_ns` (no earlier than any arrival), give.
+        Returns the time at `mono_ns` and the simulation time of each arrival.
+
+        An answer so counts from when it came, not from when the loop took it.  The real-time
+        loop sleeps until the next sense tick and takes the acts that came meanwhile only
+        then; read first, the clock would find a robot that answered within its lead holding
+        the world, for as long as the loop woke late (docs/scale.md, "Answers counted when
+        they came").
+
+        A reading is a pass over the seats.  When no reading up to `mono_ns` can hold (every
+        horizon that could bind lies at or beyond the wall clock at `mono_ns`) and the
+        arrivals come in order, the readings at the arrivals only move the clock on and touch
+        the seats of the robots answering: one pass over the seats for the whole loop pass
+        (docs/scale.md, "The world's loop at 18 robots").  tests/world/test_guard_matches_oracle.py
+        checks both ways against readings one at a time."""
+        if not self._no_hold_before(mono_ns, answers):
+            arrivals_ns = []
+            for name, tick, arrival_ns in answers:
+                arrivals_ns.append(self.sim_time_ns(arrival_ns))
+                self.answer(name, tick)
+            return self.sim_time_ns(mono_ns), arrivals_ns
+        offset_ns, period_ns, enabled = self._offset_ns, self.period_ns, self.enabled
+        horizon0_ns = self._tick0_ns + (1 + self.lead_periods - self._tick0) * period_ns
+        blind0_ns = -self._tick0_ns - (1 - self._tick0) * period_ns
+        last_mono_ns, sim_ns = self._last_mono_ns, self._sim_ns
+        seats = self.seats
+        # Readings readmit lapsed robots that caught up (seldom any); none of them can hold.
+        lapsed = [s for s in seats.values() if s.lapsed and s.live and s.answered is not None]
+        arrivals_ns = []
+        for name, tick, arrival_ns in answers:
+            if last_mono_ns is not None and arrival_ns < last_mono_ns:
+                arrivals_ns.append(min(sim_ns, arrival_ns - offset_ns))
+            else:
+                # Against the time of the reading before, as `sim_time_ns` readmits.
+                for other in lapsed:
+                    other_answered = other.answered
+                    if (
+                        other.lapsed
+                        and other_answered is not None
+                        and horizon0_ns + other_answered * period_ns >= sim_ns
+                    ):
+                        other.lapsed = False
+                last_mono_ns = arrival_ns
+                sim_ns = max(sim_ns, arrival_ns - offset_ns)
+                arrivals_ns.append(sim_ns)
+                # The blind time of the robot answering, up to its answer; the others' grows
+                # to the last reading's.
+                seat = seats[name]
+                answered = seat.answered
+                if (
+                    seat.live
+                    and answered is not None
+                    and not (enabled and seat.lapsed and not seat.exempt)
+                ):
+                    blind_ns = sim_ns + blind0_ns - answered * period_ns
+                    if blind_ns > seat.max_blind_ns:
+                        seat.max_blind_ns = blind_ns
+            self.answer(name, tick)
+            seat = seats[name]
+            if seat.lapsed and seat.live and seat.answered is not None and seat not in lapsed:
+                lapsed.append(seat)
+        self._last_mono_ns, self._sim_ns = last_mono_ns, sim_ns
+        return self.sim_time_ns(mono_ns), arrivals_ns
+
+    def _no_hold_before(self, mono_ns: int, answers: Sequence[tuple[str, int, int]]) -> bool:
+        """Whether readings at the arrivals of `answers` (given in order) and at `mono_ns`
+        cannot hold the world, whatever the answers change: the guard is off, or the world's
+        own horizon and that of every robot that could be waited for by then, at the oldest
+        tick it has answered in the meantime, lie at or beyond the wall clock at `mono_ns`."""
+        last_mono_ns = self._last_mono_ns
+        if last_mono_ns is None:
+            return False
+        previous_ns = last_mono_ns
+        oldest: dict[str, int | None] = {}
+        for name, tick, arrival_ns in answers:
+            if arrival_ns >= previous_ns:
+                previous_ns = arrival_ns
+            elif previous_ns > last_mono_ns:
+                return False  # out of order after a reading: read one at a time
+            seat = self.seats[name]
+            if name not in oldest:
+                oldest[name] = seat.answered
+            if oldest[name] is None and tick <= self._published:
+                oldest[name] = tick
+        if not self.enabled:
+            return True
+        wanted_ns = mono_ns - self._offset_ns
+        period_ns = self.period_ns
+        horizon0_ns = self._tick0_ns + (1 + self.lead_periods - self._tick0) * period_ns
+        if horizon0_ns + self._published * period_ns < wanted_ns:
+            return False
+        sim_ns = self._sim_ns
+        for name, seat in self.seats.items():
+            answered = oldest.get(name, seat.answered)
+            if answered is None or not seat.live or seat.exempt:
+                continue
+            horizon_ns = horizon0_ns + answered * period_ns
+            if horizon_ns >= wanted_ns:
+                continue
+            # A lapsed robot that does not answer now and lies behind the clock already
+            # stays lapsed: nothing readmits it before `mono_ns`.
+            if seat.lapsed and name not in oldest and horizon_ns < sim_ns:
+                continue
+            return False
+        return True
 
     def sim_time_ns(self, mono_ns: int) -> int:
         """The simulation time at wall time `mono_ns`: the wall clock, held back to the

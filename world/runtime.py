@@ -614,21 +614,26 @@ class WorldProcess:
                 acts.append(self._acts.get_nowait())
             except queue.Empty:
                 break
-        limit_ns, arrivals_ns = 0, [0] * len(acts)
-        if acts and self._catch_up is not None:
-            # The clock, read once for the pass (every act in it came before this instant).
-            # A grid step that does not divide the period must not carry the physics past
-            # the next sense tick, nor past the clock.
-            clock_ns, arrivals_ns = self.guard.sim_times_ns(
-                time.monotonic_ns(), [arrival for _, _, arrival in acts]
-            )
-            limit_ns = min(clock_ns, self.next_sense_ns)
-        for (robot, raw, arrival), arrival_ns in zip(acts, arrivals_ns, strict=True):
+        taken: list[tuple[int, ActMessage, int]] = []
+        for robot, raw, arrival in acts:
             i = self.index.get(robot)
             act = parse_act(raw) if i is not None else WireDropReason.UNKNOWN_ROBOT
             self.act_counters.count(act)
-            if i is None or isinstance(act, WireDropReason):
-                continue
+            if i is not None and not isinstance(act, WireDropReason):
+                taken.append((i, act, arrival))
+        limit_ns, arrivals_ns = 0, [0] * len(taken)
+        if taken and self._catch_up is not None:
+            # The clock read at each act's arrival, the act's answer counted from then
+            # (`RealTimeGuard.take_answers`), and read again now, after every act of the pass
+            # came.  A grid step that does not divide the period must not carry the physics
+            # past the next sense tick, nor past the clock.
+            names = self.names
+            clock_ns, arrivals_ns = self.guard.take_answers(
+                time.monotonic_ns(),
+                [(names[i], act.tick, arrival) for i, act, arrival in taken],
+            )
+            limit_ns = min(clock_ns, self.next_sense_ns)
+        for (i, act, arrival), arrival_ns in zip(taken, arrivals_ns, strict=True):
             if self._catch_up is not None:
                 self._catch_up(arrival_ns, limit_ns)  # the old duty held until this act came
             self._apply_act(i, act, arrival)
@@ -1113,9 +1118,10 @@ class WorldProcess:
         An act does not wake the loop unless the guard holds the time: it carries its arrival
         instant, and the loop, which drains the acts before it moves the physics on, catches
         the physics up to that instant (on the act grid) before it applies the act, so the duty
-        changes when the act came all the same.  The answers reach the guard at the latest at
-        the next sense tick, within its lead of two periods; one wake-up per act (N per period)
-        would cost the loop an iteration and a physics step each."""
+        changes when the act came all the same.  The guard counts each answer from its
+        arrival too (`RealTimeGuard.take_answers`): a robot that answered within its lead of
+        two periods holds nothing, however late the loop takes its act.  One wake-up per act
+        (N per period) would cost the loop an iteration and a physics step each."""
         end = self._end_tick()
         guard = self.guard
         # A resumed world carries on from the checkpoint's time.

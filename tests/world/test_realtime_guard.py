@@ -270,27 +270,74 @@ def test_an_earlier_instant_gets_no_later_time() -> None:
     assert guard.sim_time_ns(35 * MS) == 35 * MS  # an act that arrived at 35 ms
 
 
-def test_one_reading_for_a_pass_maps_its_acts_as_a_reading_per_act_would() -> None:
-    """`sim_times_ns`: the time now and the arrivals' times, as readings at each arrival and
-    then now give them while no answer comes in between."""
-    for arrivals_ms, now_ms in (([31, 36, 38], 39), ([35], 70), ([45, 60, 90], 95)):
+def test_an_act_that_came_within_the_lead_holds_nothing_when_the_loop_takes_it_late() -> None:
+    """The loop sleeps until the next sense tick and only then takes the acts that came
+    meanwhile: robot3's answer to tick 1 came at 18 ms, before its horizon of 20 ms (it had
+    answered tick 0: that period ends at 10 ms, plus one period of lead).  The loop takes it
+    at 27 ms.  Counted from when it came, it held nothing; a reading before the answer would
+    have held the world for 7 ms."""
+    taken, read_first = running_guard(), running_guard()
+    for guard in (taken, read_first):
+        publish_through(guard, 2)
+        for name in ("robot1", "robot2"):
+            guard.answer(name, 2)
+        guard.answer("robot3", 0)
+        assert guard.sim_time_ns(12 * MS) == 12 * MS
+    now_ns, arrivals_ns = taken.take_answers(27 * MS, [("robot3", 1, 18 * MS)])
+    assert (now_ns, arrivals_ns) == (27 * MS, [18 * MS])
+    assert not taken.holding and taken.holds == 0 and taken.held_ns == 0
+    # The order it replaces: the clock read at 27 ms before the answer is counted.
+    assert read_first.sim_time_ns(27 * MS) == 20 * MS
+    read_first.answer("robot3", 1)
+    assert read_first.holds == 1 and read_first.held_ns == 7 * MS
+
+
+def test_an_act_that_came_past_the_lead_holds_the_world_until_it_came() -> None:
+    """robot3 answered tick 0 only (horizon 20 ms) and its answer to tick 1 came at 26 ms:
+    the world was held from 20 to 26 ms of wall time, not until the loop took the act at
+    33 ms, and the act came at 20 ms of simulated time."""
+    guard = running_guard()
+    publish_through(guard, 2)
+    for name in ("robot1", "robot2"):
+        guard.answer(name, 2)
+    assert guard.sim_time_ns(12 * MS) == 12 * MS
+    now_ns, arrivals_ns = guard.take_answers(
+        33 * MS, [("robot1", 2, 15 * MS), ("robot3", 1, 26 * MS), ("robot2", 2, 30 * MS)]
+    )
+    assert arrivals_ns == [15 * MS, 20 * MS, 24 * MS]
+    assert now_ns == 27 * MS
+    assert guard.holds == 1 and guard.held_ns == 6 * MS
+    assert guard.seats["robot3"].held_ns == 6 * MS and guard.seats["robot1"].held_ns == 0
+    assert not guard.holding
+
+
+def test_taking_a_pass_of_answers_is_reading_the_clock_at_each_of_them() -> None:
+    """`take_answers` against a reading at each arrival, then the answer, then a reading now;
+    passes with and without a hold, and an arrival before the last reading."""
+    for answers_ms, now_ms in (
+        ([("robot1", 2, 31), ("robot2", 2, 36), ("robot3", 2, 38)], 39),
+        ([("robot1", 1, 35)], 70),
+        ([("robot3", 3, 45), ("robot2", 3, 60), ("robot1", 3, 90)], 95),
+        ([("robot1", 2, 25), ("robot2", 2, 29), ("robot3", 1, 31)], 40),
+    ):
         one, each = running_guard(), running_guard()
         for guard in (one, each):
-            publish_through(guard, 2)
+            publish_through(guard, 3)
             for name in ROBOTS:
-                guard.answer(name, 2)
+                guard.answer(name, 1)
             assert guard.sim_time_ns(30 * MS) == 30 * MS
-        now_ns, arrivals_ns = one.sim_times_ns(now_ms * MS, [m * MS for m in arrivals_ms])
-        assert arrivals_ns == [each.sim_time_ns(m * MS) for m in arrivals_ms]
+        answers = [(name, tick, m * MS) for name, tick, m in answers_ms]
+        now_ns, arrivals_ns = one.take_answers(now_ms * MS, answers)
+        expected = []
+        for name, tick, arrival in answers:
+            expected.append(each.sim_time_ns(arrival))
+            each.answer(name, tick)
+        assert arrivals_ns == expected
         assert now_ns == each.sim_time_ns(now_ms * MS)
-        assert one.holding == each.holding and one.held_ns == each.held_ns
-    # Answers up to tick 2 with a lead of one period: held at 40 ms, so an act that came at
-    # 60 ms wall time came at 40 ms of simulated time, and so did the pass.
-    assert (now_ns, arrivals_ns) == (40 * MS, [40 * MS, 40 * MS, 40 * MS])
-    # An instant before the last reading, as a reading of it would give it; never later.
-    earlier = one.sim_times_ns(96 * MS, [20 * MS, 95 * MS])[1]
-    assert earlier == [each.sim_time_ns(20 * MS), each.sim_time_ns(95 * MS)]
-    assert earlier[0] <= 20 * MS and earlier[1] == 40 * MS
+        assert (one.holding, one.held_ns, one.holds) == (each.holding, each.held_ns, each.holds)
+        assert one.seats == each.seats
+    # The last pass: an act from before the last reading gets that reading's time at most.
+    assert arrivals_ns[0] == 25 * MS
 
 
 @pytest.mark.parametrize(
