@@ -219,8 +219,7 @@ class RealTimeGuard:
         An answer so counts from when it came, not from when the loop took it.  The real-time
         loop sleeps until the next sense tick and takes the acts that came meanwhile only
         then; read first, the clock would find a robot that answered within its lead holding
-        the world, for as long as the loop woke late (docs/scale.md, "Answers counted when
-        they came").
+        the world, for as long as the loop woke late (docs/scale.md, "The world's intake").
 
         A reading is a pass over the seats.  When no reading up to `mono_ns` can hold (every
         horizon that could bind lies at or beyond the wall clock at `mono_ns`) and the

@@ -83,14 +83,17 @@ class MessageDropReason(enum.Enum):
 
 
 def parse_message_or_reason(model: type[M], payload: bytes | str) -> M | MessageDropReason:
-    """The payload as `model`, or why it was refused."""
+    """The payload as `model`, or why it was refused.
+
+    Read and validated in one pass by pydantic-core (`model_validate_json`), with no Python
+    objects built for the JSON first: a robot's telemetry in 8 µs instead of 21 with
+    `json.loads` and `model_validate` (docs/scale.md, "The world's intake").  The
+    text must be UTF-8 JSON (RFC 8259): other encodings and lone surrogates are `NOT_JSON`."""
     try:
-        data = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        return MessageDropReason.NOT_JSON
-    try:
-        return model.model_validate(data)
-    except ValidationError:
+        return model.model_validate_json(payload)
+    except ValidationError as exc:
+        if any(error["type"] == "json_invalid" for error in exc.errors(include_url=False)):
+            return MessageDropReason.NOT_JSON
         return MessageDropReason.DOES_NOT_FIT
 
 

@@ -13,12 +13,14 @@ from robot_firmware.net.admin import AdminQueue, answer, reply_as_json
 from robot_firmware.net.messages import (
     AdminError,
     KillReply,
+    MessageDropReason,
     RegsAccessReply,
     RegsBusError,
     RegsDumpReply,
     TelemetryMessage,
     WorldStatusReply,
     parse_message,
+    parse_message_or_reason,
     parse_reply,
 )
 from robot_firmware.regs_admin import handle_regs_request
@@ -63,6 +65,29 @@ def test_telemetry_round_trips_and_tolerates_fields_it_does_not_know() -> None:
     assert parse_message(TelemetryMessage, json.dumps(newer)) == message
     assert parse_message(TelemetryMessage, b'{"robot": "robot2"}') is None  # no t_s
     assert parse_message(TelemetryMessage, b"\xff\xfe") is None
+
+
+def test_a_message_is_read_as_json_text_then_validated_would_read_it() -> None:
+    """One pass of pydantic-core takes what `json.loads` then `model_validate` took, and gives
+    the same reasons for what they refused; only UTF-8 is JSON text."""
+    message = TelemetryMessage(
+        robot="robot2", t_s=1.5, role="follower", estimate=(1.0, 2.0, 0.5), kp=(1.0, 2.0, 3.0)
+    )
+    text = message.to_json_bytes()
+    assert parse_message_or_reason(TelemetryMessage, text) == TelemetryMessage.model_validate(
+        json.loads(text)
+    )
+    refused = {
+        b"{not json": MessageDropReason.NOT_JSON,
+        b"": MessageDropReason.NOT_JSON,
+        b"[1, 2]": MessageDropReason.DOES_NOT_FIT,
+        text.replace(b'"t_s":1.5', b'"t_s":NaN'): MessageDropReason.DOES_NOT_FIT,
+        text.replace(b'"t_s":1.5', b'"t_s":"soon"'): MessageDropReason.DOES_NOT_FIT,
+        text.decode().encode("utf-16"): MessageDropReason.NOT_JSON,
+    }
+    for payload, reason in refused.items():
+        assert payload != text
+        assert parse_message_or_reason(TelemetryMessage, payload) is reason, payload
 
 
 def regs(fabric: Fabric, body: object) -> BaseModel:
