@@ -6,7 +6,9 @@
   sense and clock messages encoded and published; waiting for every robot's act and frames;
   gathering them; the physics step; truth and checkpoints) and, per robot, the median time from
   its sense message out to its act message in (two router hops plus the robot's receive, tick
-  and act; the raw ping-pong below is what the hops alone cost);
+  and act; the raw ping-pong below is what the hops alone cost); and the CPU per tick of the
+  router, the world and a robot (every thread, from /proc over the same window), their sum and
+  how many of the cores it keeps busy over a tick;
 * real time: control-loop deadline misses and period jitter per robot over 32 s runs;
 * CPU per process (router, world, each robot) during a real-time run, from /proc;
 * radio one-hop overhead with the ideal profile: a frame from `radio/tx/robot1` through the
@@ -35,11 +37,12 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from machine import machine_lines
-from proc_stats import CpuWindow
+from proc_stats import CpuWindow, cpu_seconds
 from swarm_up import SwarmUp, start_router
 
 from robot_firmware.net.keys import SwarmKeys
@@ -66,21 +69,41 @@ def wedge_scenario(directory: Path, robots: int) -> Path:
     return path
 
 
-def lockstep_speedup(
-    window_s: float, scenario: Path | None = None
-) -> tuple[float, LockstepProfileReport | None]:
-    """Simulated seconds per wall second over `window_s` of a running lockstep swarm, and the
-    world's profile of its ticks (since time started)."""
+@dataclass(frozen=True)
+class LockstepRun:
+    """One lockstep window: simulated seconds per wall second, the world's profile of its
+    ticks, and the CPU each process used per tick (ms; robots by name)."""
+
+    speedup: float
+    profile: LockstepProfileReport | None
+    cpu_ms_per_tick: dict[str, float]
+
+
+def lockstep_speedup(window_s: float, scenario: Path | None = None) -> LockstepRun:
+    """Simulated seconds per wall second over `window_s` of a running lockstep swarm, the
+    world's profile of its ticks (since time started) and each process's CPU per tick over the
+    same window (/proc: every thread of it, Zenoh's included)."""
     args = ("--lockstep",) if scenario is None else ("--lockstep", "--scenario", str(scenario))
     with tempfile.TemporaryDirectory() as out, SwarmUp(Path(out), *args) as up:
         first = up.wait_ticking(timeout_s=600)
+        pids = {name: pid for name, pid in up.pids().items() if name != "launcher"}
+        before = {name: cpu_seconds(pid) for name, pid in pids.items()}
         t0 = time.monotonic()
         time.sleep(window_s)
         second = up.world_status(timeout_s=10)
+        after = {name: cpu_seconds(pid) for name, pid in pids.items()}
         wall = time.monotonic() - t0
         assert second is not None
-        return (second.t_s - first.t_s) / wall, window_profile(
-            first.lockstep_profile, second.lockstep_profile
+        ticks = max(second.tick - first.tick, 1)
+        cpu = {
+            name: 1000.0 * (end - start) / ticks
+            for name in pids
+            if (start := before[name]) is not None and (end := after[name]) is not None
+        }
+        return LockstepRun(
+            (second.t_s - first.t_s) / wall,
+            window_profile(first.lockstep_profile, second.lockstep_profile),
+            cpu,
         )
 
 
@@ -98,13 +121,13 @@ def window_profile(
     return second.model_copy(update={"ticks": ticks, "phase_ms_per_tick": phases})
 
 
-def print_lockstep(label: str, runs: list[tuple[float, LockstepProfileReport | None]]) -> None:
-    speedups = [speedup for speedup, _ in runs]
+def print_lockstep(label: str, runs: list[LockstepRun]) -> None:
+    speedups = [run.speedup for run in runs]
     print(
         f"lockstep speed-up over real time, {label}: {statistics.median(speedups):.2f}x "
         f"(runs: {', '.join(f'{s:.2f}' for s in speedups)})"
     )
-    profiles = [p for _, p in runs if p is not None]
+    profiles = [run.profile for run in runs if run.profile is not None]
     if not profiles:
         return
     phases = list(profiles[0].phase_ms_per_tick)
@@ -120,6 +143,32 @@ def print_lockstep(label: str, runs: list[tuple[float, LockstepProfileReport | N
             f"  robot answer (sense out -> act in), median over robots of p50: "
             f"{statistics.median(answers):.3f} ms (min {min(answers):.3f}, max {max(answers):.3f})"
         )
+    print_cpu_per_tick(runs, total)
+
+
+def print_cpu_per_tick(runs: list[LockstepRun], tick_ms: float) -> None:
+    """CPU per tick by process (ms, median of the runs; a robot: the median robot), their sum,
+    and how many of the cores that sum keeps busy for a tick's wall time."""
+    per_run: list[dict[str, float]] = []
+    for run in runs:
+        robots = [ms for name, ms in run.cpu_ms_per_tick.items() if name.startswith("robot")]
+        if not robots:
+            continue
+        per_run.append(
+            {
+                "router": run.cpu_ms_per_tick.get("router", float("nan")),
+                "world": run.cpu_ms_per_tick.get("world", float("nan")),
+                "robot (median)": statistics.median(robots),
+                "all processes": sum(run.cpu_ms_per_tick.values()),
+            }
+        )
+    if not per_run:
+        return
+    print(f"  {'CPU per tick (ms, all threads)':<34} {'ms':>7}")
+    for name in per_run[0]:
+        print(f"  {name:<34} {statistics.median(r[name] for r in per_run):>7.3f}")
+    busy = statistics.median(r["all processes"] for r in per_run) / tick_ms
+    print(f"  {'cores busy over a tick':<34} {busy:>7.2f}")
 
 
 def realtime_run() -> tuple[dict, dict[str, float | None]]:
