@@ -2,8 +2,8 @@
 (prints tables).
 
 It generates a wedge of N robots (as `swarm scenario generate --robots N --formation wedge`
-would), runs `swarm up --no-dashboard` in real time with the phase probe of
-bench/phase_probe/sitecustomize.py loaded into the robot and world processes, and after
+would), runs `swarm up --no-dashboard` in real time (`--lockstep`: in lockstep) with the phase
+probe of bench/phase_probe/sitecustomize.py loaded into the robot and world processes, and after
 `--duration` seconds reads what the probe wrote: for each phase of the robot's control loop
 (sense messages to the pins, the fabric model's time, the 5C control tick, radio frames, act
 and telemetry messages, the scheduler, the garbage collector's runs) the CPU per control period
@@ -14,7 +14,7 @@ caches after another process ran included), not the wall time it waited.  Compar
 `bench/robot_period.py`, which times a robot's whole period without the network, warm and with
 the caches evicted.
 
-    .venv/bin/python bench/robot_phases.py [--robots 6] [--duration 30] [--keep DIR]
+    .venv/bin/python bench/robot_phases.py [--robots 6] [--duration 30] [--lockstep] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -37,6 +37,8 @@ from swarm_config.generate import GenerateRequest, generate_scenario_text
 
 PROBE_DIR = Path(__file__).resolve().parent / "phase_probe"
 PERIOD_LABEL = {"robot": "control period", "world": "sense tick"}
+LOCKSTEP_SPEEDUP_BOUND = 20
+"""Lockstep: the fastest a measured run may go (simulated seconds per wall second)."""
 
 
 def probe_clock_cost_ns(calls: int = 200_000) -> float:
@@ -48,7 +50,7 @@ def probe_clock_cost_ns(calls: int = 200_000) -> float:
     return (time.perf_counter_ns() - started) / calls
 
 
-def run(robots: int, duration_s: float, work: Path) -> list[dict[str, Any]]:
+def run(robots: int, duration_s: float, work: Path, lockstep: bool) -> list[dict[str, Any]]:
     scenario = work / f"wedge-{robots}.yaml"
     scenario.write_text(
         generate_scenario_text(GenerateRequest(robots=robots, formation="wedge", seed=1)),
@@ -61,9 +63,13 @@ def run(robots: int, duration_s: float, work: Path) -> list[dict[str, Any]]:
         p for p in (str(PROBE_DIR), os.environ.get("PYTHONPATH")) if p
     )
     try:
-        # The probe drops 15 s of warm-up periods; the run goes on `duration_s` beyond that.
+        # The probe drops 15 s of warm-up periods; the run goes on `duration_s` beyond that
+        # (in lockstep simulated time runs faster than the wall clock: the run is long enough
+        # for a swarm up to LOCKSTEP_SPEEDUP_BOUND times real time, and stopped when measured).
+        sim_s = (duration_s + 40) * (LOCKSTEP_SPEEDUP_BOUND if lockstep else 1)
+        clock = ("--lockstep",) if lockstep else ()
         up = SwarmUp(
-            work / "run", "--scenario", str(scenario), "--duration", f"{duration_s + 40:.0f}"
+            work / "run", "--scenario", str(scenario), "--duration", f"{sim_s:.0f}", *clock
         )
         with up:
             deadline = time.monotonic() + 120.0 + duration_s + 4.0 * robots
@@ -108,25 +114,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--duration", type=float, default=30.0, help="measured seconds after warm-up (default 30)"
     )
     parser.add_argument("--keep", type=Path, help="keep the run's files in this new directory")
+    parser.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="run the swarm in lockstep (one tick per sense message) instead of real time",
+    )
     args = parser.parse_args(argv)
     if args.robots < 1 or args.duration <= 0:
         parser.error("--robots is at least 1 and --duration positive")
     if args.keep is not None and args.keep.exists():
         parser.error(f"--keep {args.keep}: it exists; name a new directory")
-    print("# phases of the main loops in a running swarm (thread CPU, real time)")
+    clock = "lockstep" if args.lockstep else "real time"
+    print(f"# phases of the main loops in a running swarm (thread CPU, {clock})")
     for line in machine_lines():
         print(line)
     print(
-        f"# {args.robots}-robot wedge, {args.duration:.0f} s measured after 15 s of warm-up; "
+        f"# {args.robots}-robot wedge, {args.duration:.0f} s of wall time measured after "
+        "1,500 periods of warm-up; "
         f"a probed call costs about {2 * probe_clock_cost_ns() / 1e3:.1f} us more"
     )
     print("# nested: _run_period > _control > control_tick, receive, _publish_act, ...")
     if args.keep is not None:
         args.keep.mkdir(parents=True)
-        records = run(args.robots, args.duration, args.keep)
+        records = run(args.robots, args.duration, args.keep, args.lockstep)
     else:
         with tempfile.TemporaryDirectory(prefix="robot-phases-") as work:
-            records = run(args.robots, args.duration, Path(work))
+            records = run(args.robots, args.duration, Path(work), args.lockstep)
     print()
     for role in ("robot", "world"):
         print("\n".join(table(role, records)))
