@@ -46,11 +46,10 @@ from machine import machine_lines
 from proc_stats import CpuWindow, memory_mib
 from swarm_up import SwarmUp
 
+from services.real_time_hold import HOLD_MISS_SHARE, HOLD_REAL_TIME_FACTOR, holds_real_time
 from swarm_config.generate import GenerateRequest, generate_scenario_text
 
 DEFAULT_SIZES = (3, 6, 12, 24, 36, 48)
-HOLD_MISS_SHARE = 0.01
-HOLD_REAL_TIME_FACTOR = 0.99
 CLEAR_FAILURE_MISS_SHARE = 0.20
 CHEAP_SIZE = 6
 """Up to this many robots a size is run three times by default."""
@@ -205,12 +204,7 @@ class SizeFigures:
 
     @property
     def holds(self) -> bool:
-        return (
-            self.miss_max is not None
-            and self.miss_max <= HOLD_MISS_SHARE
-            and self.real_time_factor is not None
-            and self.real_time_factor >= HOLD_REAL_TIME_FACTOR
-        )
+        return holds_real_time(self.real_time_factor, self.miss_max)
 
     @property
     def clearly_fails(self) -> bool:

@@ -15,12 +15,13 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from pydantic import BaseModel
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
+from services.real_time_hold import real_time_shortfalls
 from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
@@ -452,15 +453,29 @@ def _cmd_up(args: argparse.Namespace) -> int:
             f"for late robots{world_part} (longest {1000 * guard['longest_hold_s']:.0f} ms); "
             f"passed over: {passed_over or 'none'}"
         )
-    timings = summary.get("control_timing") or {}
-    for name, timing in timings.items() if summary["clock_mode"] == "real_time" else ():
+    if summary["clock_mode"] == "real_time":
+        _print_real_time_verdict(summary)
+    print(f"wrote {summary_path}")
+    return code
+
+
+def _print_real_time_verdict(summary: dict[str, Any]) -> None:
+    """Each robot's missed deadlines, and whether the run held real time (the criterion of
+    bench/scale.py, services/real_time_hold.py), with what to do when it did not."""
+    deadlines: dict[str, tuple[int, int]] = {}
+    for name, timing in (summary.get("control_timing") or {}).items():
         if timing:
+            deadlines[name] = (timing["deadline_misses"], timing["ticks"])
             print(
                 f"  {name:<7} {timing['deadline_misses']} of {timing['ticks']} control "
                 "deadlines missed"
             )
-    print(f"wrote {summary_path}")
-    return code
+    shortfalls = real_time_shortfalls(summary.get("real_time_factor"), deadlines)
+    if shortfalls:
+        print(
+            f"  did not hold real time: {'; '.join(shortfalls)}. On a host short of CPU run "
+            "fewer robots, or --lockstep, which waits for every robot (docs/scale.md)"
+        )
 
 
 def _print_headline(s: dict[str, object]) -> None:
