@@ -342,16 +342,20 @@ class Firmware:
         # A peer that is not live has stopped (DESIGN.md §7: a power cut; the world brakes its
         # body) and stays an obstacle, never stale, until it is heard again: held where its
         # last broadcast state coasts to in `stopped_coast_s`.
-        coast_s = m.leadership.stopped_coast_s
-        for peer in range(len(m.names)):
-            known = peer != m.index and math.isfinite(self.peer_stamp_s[peer])
-            down = known and not leadership.is_live(peer, t_s)
-            if down and not self.peer_down[peer]:
-                self.peer_pose[peer] += self.peer_rate[peer] * coast_s
-                self.peer_rate[peer] = 0.0
-            self.peer_down[peer] = down
-            if down:
+        live = leadership.live_flags(t_s)
+        down = [
+            not alive and math.isfinite(stamp_s)
+            for alive, stamp_s in zip(live, self.peer_stamp_s.tolist(), strict=True)
+        ]
+        if any(down):
+            coast_s = m.leadership.stopped_coast_s
+            was_down = self.peer_down.tolist()
+            for peer in (peer for peer, is_down in enumerate(down) if is_down):
+                if not was_down[peer]:
+                    self.peer_pose[peer] += self.peer_rate[peer] * coast_s
+                    self.peer_rate[peer] = 0.0
                 self.peer_stamp_s[peer] = t_s
+        self.peer_down[:] = down
 
     def _set_role(self, is_leader: bool, slot_distance_m: float, slot_angle_rad: float) -> None:
         role = self.role

@@ -310,14 +310,22 @@ class Leadership:
         """Whether `robot` counts as live at `t_s` (itself always)."""
         if robot == self.index:
             return True
-        peer = self.peers[robot]
+        return self._peer_live(self.peers[robot], self._tokens_count(t_s), t_s)
+
+    def live_flags(self, t_s: float) -> list[bool]:
+        """`is_live` of every robot at `t_s`, by index, in one pass (the firmware asks each
+        tick for every peer)."""
         tokens = self._tokens_count(t_s)
+        live = self._peer_live
+        flags = [live(peer, tokens, t_s) for peer in self.peers]
+        flags[self.index] = True
+        return flags
+
+    def _peer_live(self, peer: PeerRecord, tokens: bool, t_s: float) -> bool:
         if tokens and peer.token_gone:
             return False
-        if tokens and peer.token_seen and peer.last_heard_s == -math.inf:
-            return True  # up and still booting: it will speak
         if peer.last_heard_s == -math.inf:
-            return False
+            return tokens and peer.token_seen  # up and still booting: it will speak
         heard_s = max(peer.last_heard_s, self.listening_since_s)
         return t_s - heard_s <= self.params.leader_timeout_s
 

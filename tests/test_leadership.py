@@ -422,6 +422,29 @@ def test_isolated_leader_steps_down_for_the_majoritys_higher_term() -> None:
     assert {(leader, term) for t_s, leader, term in claims if t_s > 8.0} == {(1, 1)}
 
 
+@pytest.mark.parametrize("seed", range(20))
+def test_every_robots_liveness_in_one_pass_is_each_robots_own(seed: int) -> None:
+    """`live_flags` (the firmware asks it every tick) agrees with `is_live` robot by robot, in
+    random states: heard or not, tokens seen, gone or not, counting or not (lockstep, a stall),
+    listening since a gap."""
+    rng = np.random.default_rng(seed)
+    machine = robot(int(rng.integers(5)), count=5)
+    for _ in range(60):
+        peer = int(rng.integers(5))
+        t_s = float(rng.uniform(0.0, 4.0))
+        step = int(rng.integers(4))
+        if step == 0:
+            machine.hear(peer, 0, False, t_s)
+        elif step == 1:
+            machine.set_alive(peer, bool(rng.integers(2)), t_s)
+        elif step == 2:
+            machine.use_tokens = bool(rng.integers(2))
+        else:
+            machine.resume(t_s)
+        now_s = t_s + float(rng.uniform(0.0, 1.0))
+        assert machine.live_flags(now_s) == [machine.is_live(i, now_s) for i in range(5)]
+
+
 def test_liveness_follows_frames_and_tokens() -> None:
     follower = robot(2)
     assert follower.is_live(2, 100.0)
