@@ -92,6 +92,7 @@ import hmac
 import math
 import operator
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 MAGIC = b"SW"
@@ -233,12 +234,15 @@ class RadioFrame:
         struct's widths, a known role, floats, the run id's length): the checks of
         `__post_init__` cannot fail on them, so a receiver skips them."""
         frame = object.__new__(cls)
-        for name, value in zip(_SLOTS, values, strict=True):
-            object.__setattr__(frame, name, value)
+        for set_slot, value in zip(_SLOT_SETTERS, values, strict=True):
+            set_slot(frame, value)
         return frame
 
 
-_SLOTS: tuple[str, ...] = RadioFrame.__slots__
+_SLOT_SETTERS: tuple[Callable[[RadioFrame, object], None], ...] = tuple(
+    getattr(RadioFrame, name).__set__ for name in RadioFrame.__slots__
+)
+"""Each slot's own setter, in `__slots__` order: what `object.__setattr__` finds by name."""
 
 
 def hkdf_sha256(ikm: bytes, salt: bytes, info: bytes, length: int) -> bytes:
