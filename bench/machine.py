@@ -2,8 +2,9 @@
 
 The same 2-core virtual machine runs the same code up to 1.7 times slower from one hour to the
 next (docs/scale.md): the header also times a fixed calibration workload, the kind of work a
-robot's period is made of (a pure-Python loop of small calls, and NumPy calls on 3-element
-arrays), so figures of different hours can be put side by side by it.  Lower is faster."""
+robot's period is made of (a pure-Python loop of small calls, NumPy calls on 3-element arrays,
+and random reads over 64 MiB, more than a core's caches hold, as when a dozen processes share
+them), so figures of different hours can be put side by side by it.  Lower is faster."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import os
 import platform
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +39,9 @@ def load_average() -> str:
 
 CALIBRATION_CALLS = 100_000
 CALIBRATION_REPEATS = 5
+CALIBRATION_TABLE_WORDS = 16 << 20
+"""64 MiB of 32-bit words."""
+CALIBRATION_READS = 1 << 20
 
 
 def _python_calls() -> None:
@@ -56,10 +61,26 @@ def _small_numpy_calls() -> None:
         np.hypot(pose[0], pose[1])
 
 
+def _random_reads() -> Callable[[], None]:
+    rng = np.random.default_rng(1)
+    table = np.arange(CALIBRATION_TABLE_WORDS, dtype=np.int32)
+    where = rng.integers(0, table.size, CALIBRATION_READS)
+
+    def read() -> None:
+        table[where].sum()
+
+    return read
+
+
 def host_speed_ms() -> dict[str, float]:
     """Milliseconds the calibration workloads take here now (median of a few runs)."""
     speeds = {}
-    for name, work in (("python", _python_calls), ("numpy", _small_numpy_calls)):
+    workloads = (
+        ("python", _python_calls),
+        ("numpy", _small_numpy_calls),
+        ("memory", _random_reads()),
+    )
+    for name, work in workloads:
         times = []
         for _ in range(CALIBRATION_REPEATS):
             started = time.perf_counter()
@@ -78,7 +99,8 @@ def machine_lines() -> list[str]:
         f"# machine: {cpu_model()}, {os.cpu_count()} cores, load average {load_average()}",
         f"# Python {platform.python_version()}, NumPy {np.__version__}, {platform.platform()}",
         f"# host speed now (bench/machine.py calibration, lower is faster): "
-        f"{speed['python']:.1f} ms of Python calls, {speed['numpy']:.1f} ms of small NumPy calls",
+        f"{speed['python']:.1f} ms of Python calls, {speed['numpy']:.1f} ms of small NumPy calls, "
+        f"{1e6 * speed['memory'] / CALIBRATION_READS:.1f} ns per random read over 64 MiB",
     ]
 
 
