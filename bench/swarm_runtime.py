@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 from machine import machine_lines
-from proc_stats import CpuWindow, cpu_seconds
+from proc_stats import CpuWindow
 from swarm_up import SwarmUp, start_router
 
 from robot_firmware.net.keys import SwarmKeys
@@ -86,20 +86,16 @@ def lockstep_speedup(window_s: float, scenario: Path | None = None) -> LockstepR
     args = ("--lockstep",) if scenario is None else ("--lockstep", "--scenario", str(scenario))
     with tempfile.TemporaryDirectory() as out, SwarmUp(Path(out), *args) as up:
         first = up.wait_ticking(timeout_s=600)
-        pids = {name: pid for name, pid in up.pids().items() if name != "launcher"}
-        before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        window = CpuWindow({n: pid for n, pid in up.pids().items() if n != "launcher"})
         t0 = time.monotonic()
         time.sleep(window_s)
         second = up.world_status(timeout_s=10)
-        after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        percent = window.percent()
         wall = time.monotonic() - t0
         assert second is not None
         ticks = max(second.tick - first.tick, 1)
-        cpu = {
-            name: 1000.0 * (end - start) / ticks
-            for name in pids
-            if (start := before[name]) is not None and (end := after[name]) is not None
-        }
+        # % of one core over the window -> ms of CPU per tick
+        cpu = {name: 10.0 * pct * wall / ticks for name, pct in percent.items() if pct is not None}
         return LockstepRun(
             (second.t_s - first.t_s) / wall,
             window_profile(first.lockstep_profile, second.lockstep_profile),

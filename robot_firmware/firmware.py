@@ -350,7 +350,9 @@ class Firmware:
         if any(down):
             coast_s = m.leadership.stopped_coast_s
             was_down = self.peer_down.tolist()
-            for peer in (peer for peer, is_down in enumerate(down) if is_down):
+            for peer, is_down in enumerate(down):
+                if not is_down:
+                    continue
                 if not was_down[peer]:
                     self.peer_pose[peer] += self.peer_rate[peer] * coast_s
                     self.peer_rate[peer] = 0.0
