@@ -2,7 +2,8 @@
 
 Inputs arrive in Zenoh callbacks, which only queue them (DESIGN: never block in a callback):
 `wire/<robot>/sense` (the pins) and admin queries; the frames the radio medium delivers on
-`radio/rx/<robot>` wait in a Zenoh ring channel until the loop takes them, with no callback.
+`radio/rx/<robot>` (in bundles, robot_firmware/net/radio_bundle.py) wait in a Zenoh ring channel
+until the loop takes them, with no callback.
 The main loop owns the fabric and the firmware and is a thin shell around the pure
 `TickScheduler` (robot_firmware/tick_scheduler.py), which decides when a tick runs and at
 what simulation time: in real time a 100 Hz loop on the monotonic clock, in lockstep (when the
@@ -70,6 +71,7 @@ from robot_firmware.net.messages import (
     TelemetryMessage,
     refusal_of,
 )
+from robot_firmware.net.radio_bundle import split_bundle
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from robot_firmware.net.wire import (
     ActMessage,
@@ -90,7 +92,7 @@ log = logging.getLogger("swarm.robot")
 
 NS_PER_S = 1_000_000_000
 FRAME_RING = 1024
-"""Radio frames Zenoh holds for the loop between two of its passes (the oldest dropped)."""
+"""Radio bundles Zenoh holds for the loop between two of its passes (the oldest dropped)."""
 FRAME_POLL_S = 0.0005
 """How often a lockstep tick waiting for announced radio frames looks for them."""
 
@@ -196,15 +198,17 @@ class RobotProcess:
         self._wake.set()
 
     def _collect_frames(self, received: zenoh.Handler[zenoh.Sample]) -> None:
-        """Move the radio frames Zenoh has queued on `received` into the loop's queue.
+        """Move the radio frames Zenoh has queued on `received` into the loop's queue, each
+        bundle split into its frames (robot_firmware/net/radio_bundle.py; a malformed rest
+        goes on as one frame, which the decoder drops and counts).
 
-        Frames are not taken in a Python callback: Zenoh's receive thread puts each in a ring
-        (`FRAME_RING`, the oldest dropped when full, as the queue drops them) and the loop
-        takes them when it comes round.  A callback would wake a Python thread for each of
-        the 20 (N - 1) frames a second, most of them alone, to do no more than queue it."""
+        Frames are not taken in a Python callback: Zenoh's receive thread puts each bundle in
+        a ring (`FRAME_RING`, the oldest dropped when full, as the queue drops frames) and the
+        loop takes them when it comes round.  A callback would wake a Python thread for each
+        bundle, often of one frame in real time, to do no more than queue it."""
         frames = self._frames
         while (sample := received.try_recv()) is not None:
-            frames.append(sample.payload.to_bytes())
+            frames.extend(split_bundle(sample.payload.to_bytes()))
 
     def _on_peer_token(self, sample: zenoh.Sample) -> None:
         name = SwarmKeys.last_chunk(str(sample.key_expr))

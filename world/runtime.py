@@ -2,8 +2,9 @@
 
 It owns a `WorldEngine` and talks to the robots only through their pins and the radio:
 publishes `wire/<robot>/sense`, reads `wire/<robot>/act`, forwards `radio/tx/<robot>` frames to
-the other robots' `radio/rx/<robot>` after the link profile's delay (or drops them), and
-publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what arrives; in
+the other robots' `radio/rx/<robot>` after the link profile's delay (or drops them; the frames
+one pass of the medium has for a robot go in one bundle, robot_firmware/net/radio_bundle.py),
+and publishes ground truth and metrics on `truth`.  Zenoh callbacks only queue what arrives; in
 real time a relay thread of the radio medium passes frames on as they come (`_relay_frames`),
 touching the engine only under the lock the main loop holds while it is awake.
 
@@ -114,6 +115,7 @@ from robot_firmware.net.messages import (
     WorldStatusReply,
     parse_message,
 )
+from robot_firmware.net.radio_bundle import bundle_frames
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from robot_firmware.net.wire import (
     ActMessage,
@@ -903,11 +905,17 @@ class WorldProcess:
 
     def _deliver_radio(self, until_ns: int | None = None) -> list[int]:
         """Put every frame due by simulation time `until_ns` (default: the engine's time) on
-        its receiver's `radio/rx` key; how many each robot got."""
+        its receiver's `radio/rx` key, each receiver's in one bundle, in the order they fell
+        due (robot_firmware/net/radio_bundle.py); how many frames each robot got."""
         delivered = [0] * len(self.names)
+        by_receiver: dict[int, list[bytes]] = {}
         for receiver, _sender, payload in self.engine.due_frames(until_ns):
-            self._rx_publishers[receiver].put(payload)
-            delivered[receiver] += 1
+            by_receiver.setdefault(receiver, []).append(payload)
+        for receiver, payloads in by_receiver.items():
+            publisher = self._rx_publishers[receiver]
+            for bundle in bundle_frames(payloads):
+                publisher.put(bundle)
+            delivered[receiver] = len(payloads)
         return delivered
 
     def _dead(self) -> np.ndarray:

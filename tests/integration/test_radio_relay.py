@@ -26,6 +26,7 @@ import zenoh
 
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import WorldStatusReply
+from robot_firmware.net.radio_bundle import split_bundle
 from robot_firmware.net.session import open_client
 from services.router.access import router_config_document
 from swarm_config.credentials import (
@@ -62,14 +63,17 @@ def sequence_of(payload: bytes) -> int:
 
 @dataclass
 class Inbox:
-    """What one robot's `radio/rx` key carried, in arrival order."""
+    """What one robot's `radio/rx` key carried, in arrival order: the frames and how many
+    bundles brought them."""
 
     frames: list[bytes] = field(default_factory=list)
+    bundles: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __call__(self, sample: zenoh.Sample) -> None:
         with self.lock:
-            self.frames.append(sample.payload.to_bytes())
+            self.frames.extend(split_bundle(sample.payload.to_bytes()))
+            self.bundles += 1
 
     def sequences(self) -> list[int]:
         with self.lock:

@@ -30,6 +30,7 @@ from robot_firmware.net.frames import (
     swarm_hash_from_name,
 )
 from robot_firmware.net.keys import SwarmKeys
+from robot_firmware.net.radio_bundle import split_bundle
 from robot_firmware.net.session import client_config
 from services.router.access import (
     ACT_AND_FRAME_BYTES_MAX,
@@ -80,9 +81,11 @@ class Tap:
             for who, marker in MARKERS.items():
                 if marker in data:
                     self.markers[(who, key)] += 1
-            inbox = key == KEYS.radio_rx("robot1") and len(data) == FRAME_BYTES
-            if inbox and struct.pack("<d", MARKER_X_M) in data:
-                self.inbox_marked_frames += 1
+            if key == KEYS.radio_rx("robot1"):
+                self.inbox_marked_frames += sum(
+                    len(frame) == FRAME_BYTES and struct.pack("<d", MARKER_X_M) in frame
+                    for frame in split_bundle(data)
+                )
 
     def count(self, who: str) -> int:
         with self._lock:

@@ -1,5 +1,6 @@
 """How the world passes radio frames on in real time (world/runtime.py `_relay_frames`,
-`_pass_frames_on`), without a network: the receivers' publishers record what they are given.
+`_pass_frames_on`), without a network: the receivers' publishers record what they are given
+(each put a bundle of frames, robot_firmware/net/radio_bundle.py).
 
 Frames leave the queue only under the engine's lock: by the relay thread while the main loop
 sleeps, or by the main loop's own drain while it is awake, and always in arrival order.
@@ -13,6 +14,7 @@ import threading
 import time
 from pathlib import Path
 
+from robot_firmware.net.radio_bundle import split_bundle
 from swarm_config.scenario import load_scenario
 from tests.support.waiting import wait_for
 from world.runtime import WorldConfig, WorldProcess
@@ -22,12 +24,18 @@ PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
 
 
 class RecordingPublisher:
-    def __init__(self, receiver: str, out: list[tuple[str, int]]) -> None:
+    """A receiver's `radio/rx` publisher: each frame of each bundle put, as (receiver,
+    sequence), in order; and how many frames each put carried."""
+
+    def __init__(self, receiver: str, out: list[tuple[str, int]], bundles: list[int]) -> None:
         self.receiver = receiver
         self.out = out
+        self.bundles = bundles
 
     def put(self, payload: bytes) -> None:
-        self.out.append((self.receiver, int(struct.unpack_from("<Q", payload, 8)[0])))
+        frames = split_bundle(payload)
+        self.out.extend((self.receiver, int(struct.unpack_from("<Q", f, 8)[0])) for f in frames)
+        self.bundles.append(len(frames))
 
 
 def frame(claimed_sender: int, sequence: int) -> bytes:
@@ -35,14 +43,17 @@ def frame(claimed_sender: int, sequence: int) -> bytes:
 
 
 def real_time_world(
-    profile: bytes = b'{"profile": "ideal"}',
+    profile: bytes = b'{"profile": "ideal"}', bundles: list[int] | None = None
 ) -> tuple[WorldProcess, list[tuple[str, int]]]:
     """A real-time world of the paper scenario on the link profile `profile` (a body of
-    `admin/world/net`)."""
+    `admin/world/net`); the frames each put on `radio/rx` carried go to `bundles`."""
     world = WorldProcess(WorldConfig(scenario=PAPER), load_scenario(PAPER))
     world._net_request(profile)
     delivered: list[tuple[str, int]] = []
-    world._rx_publishers = [RecordingPublisher(name, delivered) for name in world.names]  # type: ignore[misc]
+    sizes = [] if bundles is None else bundles
+    world._rx_publishers = [  # type: ignore[misc]
+        RecordingPublisher(name, delivered, sizes) for name in world.names
+    ]
     return world, delivered
 
 
@@ -53,7 +64,10 @@ def queue_frame(world: WorldProcess, sender: str, payload: bytes) -> None:
 
 
 def test_an_awake_main_loop_passes_queued_frames_on_in_arrival_order() -> None:
-    world, delivered = real_time_world()
+    """One pass: each receiver's frames in one bundle, in arrival order; the receivers in the
+    order of their first frame."""
+    bundles: list[int] = []
+    world, delivered = real_time_world(bundles=bundles)
     queue_frame(world, "robot1", frame(0, 1))
     queue_frame(world, "robot3", frame(2, 2))
     queue_frame(world, "robot2", frame(0, 3))  # robot2 claiming robot1's id: dropped
@@ -61,10 +75,11 @@ def test_an_awake_main_loop_passes_queued_frames_on_in_arrival_order() -> None:
     queue_frame(world, "robot1", frame(0, 5))
     world._drain()
     assert delivered == [
-        ("robot2", 1), ("robot3", 1),
-        ("robot1", 2), ("robot2", 2),
-        ("robot2", 5), ("robot3", 5),
+        ("robot2", 1), ("robot2", 2), ("robot2", 5),
+        ("robot3", 1), ("robot3", 5),
+        ("robot1", 2),
     ]  # fmt: skip
+    assert bundles == [3, 2, 1]
     assert (world.spoofed_frames, world.unknown_senders) == (1, 1)
     assert world.engine.radio.sent == 3
     assert world._frames.empty()
