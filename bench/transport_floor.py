@@ -14,8 +14,9 @@ no firmware at all, to find the floor under any robot process of this design:
   sense message the loop puts a frame (every fifth), the act, and telemetry (every fifth);
 * a stand-in world, its own process: every 10 ms it puts N sense messages and the clock, the
   truth every fifth tick, relays every frame to the N - 1 other robots on a thread of its own
-  (as world/runtime.py `_relay_frames` does, without drawing links), and takes every act and
-  telemetry message.
+  (as world/runtime.py `_relay_frames` does, without drawing links: the frames one relay pass
+  has for a receiver in one bundle, robot_firmware/net/radio_bundle.py), and takes every act
+  and telemetry message.
 
 Every payload is a real one, of the robots' and world's own encoders, taken from a generated
 wedge of N robots run for a few periods in this process (bench/robot_period.py
@@ -26,14 +27,14 @@ the same N then runs as a real `swarm up` (bench/scale.py `run_once`) and its ro
 and router's CPU stand beside the floor's, so the share of a robot process that is transport
 is a ratio of one run.  Each row is the median of `--repeats` runs.
 
-With `--batched-rx` every floor run is followed by a second one in which the stand-in world
-sends the frames one relay pass takes as one message per receiver (the frames joined end to
-end; the stand-in robots split them), instead of one message per frame and receiver: what
-batching the radio's N (N - 1) fan-out would save.  Its rows say `batch` in the relay column,
-and "frames/put" is how many frames a `radio/rx` message carried on average, as measured.
+With `--per-frame-rx` every floor run is followed by a second one in which the stand-in world
+puts every frame on its own for each receiver (a bundle of one), as the world did before it
+bundled: what the bundles save of the radio's N (N - 1) fan-out.  Its rows say `frame` in the
+relay column (the world's own way says `pass`), and "frames/put" is how many frames a
+`radio/rx` message carried on average, as measured.
 
     .venv/bin/python bench/transport_floor.py [--sizes 3,12,24,30] [--duration 20]
-                                              [--repeats 3] [--no-swarm] [--batched-rx]
+                                              [--repeats 3] [--no-swarm] [--per-frame-rx]
 """
 
 from __future__ import annotations
@@ -80,12 +81,10 @@ def drain(queue: deque[Any]) -> int:
     return taken
 
 
-def stand_in_robot(
-    endpoint: str, credentials: Path, payloads: dict[str, Any], name: str, batched_rx: bool
-) -> None:
+def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], name: str) -> None:
     """A robot process's messaging without its firmware (module docstring)."""
-    from robot_firmware.net.frames import FRAME_BYTES
     from robot_firmware.net.keys import SwarmKeys
+    from robot_firmware.net.radio_bundle import split_bundle
     from robot_firmware.net.session import open_client
     from swarm_config.credentials import read_credentials
 
@@ -104,13 +103,7 @@ def stand_in_robot(
         wake.set()
 
     def on_frame(sample: Any) -> None:
-        payload = sample.payload.to_bytes()
-        if batched_rx:
-            frames.extend(
-                payload[at : at + FRAME_BYTES] for at in range(0, len(payload), FRAME_BYTES)
-            )
-        else:
-            frames.append(payload)
+        frames.extend(split_bundle(sample.payload.to_bytes()))
 
     def on_token(sample: Any) -> None:
         tokens.append(str(sample.key_expr))
@@ -144,10 +137,11 @@ def stand_in_robot(
 
 
 def stand_in_world(
-    endpoint: str, credentials: Path, payloads: dict[str, Any], batched_rx: bool
+    endpoint: str, credentials: Path, payloads: dict[str, Any], per_frame_rx: bool
 ) -> None:
     """The world's messaging without its engine (module docstring)."""
     from robot_firmware.net.keys import SwarmKeys
+    from robot_firmware.net.radio_bundle import bundle_frames
     from robot_firmware.net.session import open_client
     from swarm_config.credentials import read_credentials
 
@@ -188,20 +182,20 @@ def stand_in_world(
             while queued_frames:
                 key, payload = queued_frames.popleft()
                 taken.append((SwarmKeys.last_chunk(key), payload))
-            if not batched_rx:  # frame by frame, in arrival order, as the world does
+            if per_frame_rx:  # frame by frame, in arrival order, each alone
                 for sender, payload in taken:
                     for receiver, publisher in rx_pubs.items():
                         if receiver != sender:
-                            publisher.put(payload)
+                            publisher.put(bundle_frames([payload])[0])
                             relayed += 1
                             rx_puts += 1
                 continue
-            for receiver, publisher in rx_pubs.items():
+            for receiver, publisher in rx_pubs.items():  # as the world does
                 theirs = [payload for sender, payload in taken if sender != receiver]
-                if theirs:
-                    publisher.put(b"".join(theirs))
-                    relayed += len(theirs)
+                for bundle in bundle_frames(theirs):
+                    publisher.put(bundle)
                     rx_puts += 1
+                relayed += len(theirs)
 
     late_ns: list[int] = []
     acts_taken = telemetry_taken = ticks = 0
@@ -301,12 +295,12 @@ class FloorRun:
     answered_share: float
     """Least share, over the stand-in robots, of the world's ticks each answered."""
     frames_per_rx_put: float | None
-    """Frames a `radio/rx` message carried on average: 1 unless the relay batched them."""
+    """Frames a `radio/rx` message carried on average (1 with `--per-frame-rx`)."""
     payload_bytes: dict[str, float]
     rss_mib: dict[str, float | None]
 
 
-def run_floor(robots: int, duration_s: float, work: Path, batched_rx: bool = False) -> FloorRun:
+def run_floor(robots: int, duration_s: float, work: Path, per_frame_rx: bool = False) -> FloorRun:
     from proc_stats import CpuWindow, memory_mib
     from swarm_up import start_router
 
@@ -319,8 +313,8 @@ def run_floor(robots: int, duration_s: float, work: Path, batched_rx: bool = Fal
     )
     this = str(Path(__file__).resolve())
     common = ["--endpoint", endpoint, "--payloads", str(payload_file)]
-    if batched_rx:
-        common.append("--batched-rx")
+    if per_frame_rx:
+        common.append("--per-frame-rx")
     children: dict[str, subprocess.Popen[Any]] = {"router": router}
 
     def spawn(name: str, args: list[str]) -> subprocess.Popen[str]:
@@ -410,8 +404,8 @@ def _expect_line(child: subprocess.Popen[str], line: str, name: str) -> None:
 
 def messages_per_second(robots: int, frames_per_rx_put: float | None = None) -> int:
     """Messages the router forwards a second: sense, act, clock; at 20 Hz each robot's frame,
-    its N - 1 deliveries (in `radio/rx` messages of `frames_per_rx_put` frames, 1 unless
-    batched) and its telemetry; the truth."""
+    its N - 1 deliveries (in `radio/rx` messages of `frames_per_rx_put` frames) and its
+    telemetry; the truth."""
     per_tick = robots * 2 + 1
     deliveries = (robots - 1) / (frames_per_rx_put or 1.0)
     per_fifth = robots * (1 + deliveries + 1) + 1
@@ -438,10 +432,10 @@ def main(argv: list[str] | None = None) -> int:
         help="skip the real `swarm up` run beside each floor run",
     )
     parser.add_argument(
-        "--batched-rx",
+        "--per-frame-rx",
         action="store_true",
-        help="after each floor run, run it again with the frames of one relay pass sent as one "
-        "message per receiver (rows marked 'batch')",
+        help="after each floor run, run it again with every frame put on its own for each "
+        "receiver, not one bundle per receiver and relay pass (rows marked 'frame')",
     )
     parser.add_argument("--stand-in", choices=("robot", "world"), help=argparse.SUPPRESS)
     parser.add_argument("--name", help=argparse.SUPPRESS)
@@ -452,9 +446,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.stand_in is not None:
         payloads = json.loads(args.payloads.read_text(encoding="utf-8"))
         if args.stand_in == "robot":
-            stand_in_robot(args.endpoint, args.credentials, payloads, args.name, args.batched_rx)
+            stand_in_robot(args.endpoint, args.credentials, payloads, args.name)
         else:
-            stand_in_world(args.endpoint, args.credentials, payloads, args.batched_rx)
+            stand_in_world(args.endpoint, args.credentials, payloads, args.per_frame_rx)
         return 0
     try:
         sizes = [int(part) for part in args.sizes.split(",") if part.strip()]
@@ -488,17 +482,17 @@ def main(argv: list[str] | None = None) -> int:
     floors = []
     with tempfile.TemporaryDirectory(prefix="transport-floor-") as tmp:
         for robots in sizes:
-            runs, batched_runs = [], []
+            runs, per_frame_runs = [], []
             for repeat in range(args.repeats):
                 work = Path(tmp) / f"floor-{robots}-{repeat}"
                 work.mkdir()
                 floor = run_floor(robots, args.duration, work)
                 floors.append(floor)
-                if args.batched_rx:
-                    batched_work = Path(tmp) / f"batched-{robots}-{repeat}"
-                    batched_work.mkdir()
-                    batched = run_floor(robots, args.duration, batched_work, batched_rx=True)
-                    batched_runs.append(run_figures(batched, None))
+                if args.per_frame_rx:
+                    per_frame_work = Path(tmp) / f"per-frame-{robots}-{repeat}"
+                    per_frame_work.mkdir()
+                    per_frame = run_floor(robots, args.duration, per_frame_work, per_frame_rx=True)
+                    per_frame_runs.append(run_figures(per_frame, None))
                 swarm = None
                 if args.swarm:
                     swarm_work = Path(tmp) / f"swarm-{robots}-{repeat}"
@@ -508,9 +502,9 @@ def main(argv: list[str] | None = None) -> int:
                     except RuntimeError as exc:
                         print(f"# swarm of {robots}, run {repeat + 1}: {exc}", flush=True)
                 runs.append(run_figures(floor, swarm))
-            print(table_row(robots, "frame", runs), flush=True)
-            if batched_runs:
-                print(table_row(robots, "batch", batched_runs), flush=True)
+            print(table_row(robots, "pass", runs), flush=True)
+            if per_frame_runs:
+                print(table_row(robots, "frame", per_frame_runs), flush=True)
     robot_rss = [
         v for floor in floors for n, v in floor.rss_mib.items() if n.startswith("robot") and v
     ]
