@@ -7,6 +7,8 @@ an operator tap subscribed to every key of the swarm counts the attacker's marke
 that reached anyone, the world's radio profile, robot1's scratch register and the processes
 are read back through the operator, and robot1's inbox (`radio/rx/robot1`) is watched for
 frames the attacker signed. Goal: 0 accepted. The counts are printed (pytest -s).
+Broken radio bundles put on robot1's inbox with the world's own identity are dropped and
+counted by robot1, which runs on.
 """
 
 from __future__ import annotations
@@ -307,6 +309,65 @@ def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_anot
     assert "Traceback" not in (live.out / "logs" / "world.log").read_text()
     events = (live.out / "events.jsonl").read_text().splitlines()
     assert not [e for e in events if json.loads(e).get("kind") == "leader_change"], events
+
+
+def _frame_counters(operator: zenoh.Session, robot: str) -> dict[str, int] | None:
+    replies = _replies(operator, KEYS.admin(robot, "status"))
+    if not replies:
+        return None
+    frames = json.loads(replies[0]).get("frames")
+    return frames if isinstance(frames, dict) and frames.get("accepted") else None
+
+
+def test_malformed_radio_bundles_are_dropped_and_counted_by_the_robot(
+    live_swarm: LiveSwarm,
+) -> None:
+    """Messages on robot1's `radio/rx` key that are no well-formed bundle (empty, a length
+    running past the end, a whole record then a cut one), put with the world's own identity
+    (the only one the router lets put there): robot1 stays up, counts each broken piece as a
+    frame too short, takes the whole record's frame to its decoder too, and goes on hearing its
+    peers."""
+    live = live_swarm
+    status = live.all_running()
+    robot1_pid = status["processes"]["robot1"]["pid"]
+    operator = _open(live, _credentials(live, "operator"))
+    before = live.wait_for(lambda: _frame_counters(operator, "robot1"), 30)
+    world = _open(live, _credentials(live, "world"))
+    whole_record = struct.pack("<I", 3) + b"abc"
+    broken = [
+        b"",
+        struct.pack("<I", FRAME_BYTES) + bytes(10),
+        whole_record + struct.pack("<I", 5) + b"ab",
+    ]
+    repeats = 5
+    for _ in range(repeats):
+        for payload in broken:
+            world.put(KEYS.radio_rx("robot1"), payload)
+        time.sleep(0.05)
+    world.close()
+    expected_short = repeats * (len(broken) + 1)  # the whole 3-byte record is too short too
+
+    def counted() -> dict[str, int] | None:
+        now = _frame_counters(operator, "robot1")
+        short = None if now is None else now["too_short"] - before["too_short"]
+        return now if short is not None and short >= expected_short else None
+
+    after = live.wait_for(counted, 30, describe="robot1 counting the broken bundles")
+
+    def hears_on() -> dict[str, int] | None:
+        now = _frame_counters(operator, "robot1")
+        return now if now is not None and now["accepted"] > after["accepted"] else None
+
+    later = live.wait_for(hears_on, 30, describe="robot1 still hearing its peers")
+    operator.close()
+    print(
+        f"\nrobot1's frame counters: too_short {before['too_short']} -> {after['too_short']}, "
+        f"accepted {before['accepted']} -> {after['accepted']} -> {later['accepted']}"
+    )
+    assert after["too_short"] - before["too_short"] == expected_short
+    running = live.admin("status")["processes"]["robot1"]
+    assert running["pid"] == robot1_pid and running["running"]
+    assert "Traceback" not in (live.out / "logs" / "robot1.log").read_text()
 
 
 def test_a_robot_cannot_put_messages_over_the_size_limits(live_swarm: LiveSwarm) -> None:
