@@ -113,6 +113,16 @@ def _signed_frame(secret: bytes, run_id: bytes, sender_id: int, now_ns: int) -> 
     return encode(frame, derive_frame_key(secret, SWARM))
 
 
+def _put_rounds(
+    session: zenoh.Session, key: str, payloads: list[bytes], rounds: int, pause_s: float
+) -> None:
+    """Put every payload on `key`, in order, `rounds` times, pausing `pause_s` after each round."""
+    for _ in range(rounds):
+        for payload in payloads:
+            session.put(key, payload)
+        time.sleep(pause_s)
+
+
 def _replies(session: zenoh.Session, key: str, payload: bytes | None = None) -> list[bytes]:
     return [
         bytes(reply.ok.payload.to_bytes())
@@ -286,10 +296,7 @@ def test_a_robot_lying_in_its_telemetry_cannot_crash_the_world_or_speak_for_anot
         json.dumps(ahead).encode(),
     ]
     repeats = 5
-    for _ in range(repeats):
-        for payload in lies:
-            robot2.put(KEYS.telemetry("robot2"), payload)
-        time.sleep(0.1)
+    _put_rounds(robot2, KEYS.telemetry("robot2"), lies, repeats, 0.1)
     robot2.close()
     operator.close()
 
@@ -340,10 +347,7 @@ def test_malformed_radio_bundles_are_dropped_and_counted_by_the_robot(
         whole_record + struct.pack("<I", 5) + b"ab",
     ]
     repeats = 5
-    for _ in range(repeats):
-        for payload in broken:
-            world.put(KEYS.radio_rx("robot1"), payload)
-        time.sleep(0.05)
+    _put_rounds(world, KEYS.radio_rx("robot1"), broken, repeats, 0.05)
     world.close()
     expected_short = repeats * (len(broken) + 1)  # the whole 3-byte record is too short too
 
