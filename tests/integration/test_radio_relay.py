@@ -63,17 +63,14 @@ def sequence_of(payload: bytes) -> int:
 
 @dataclass
 class Inbox:
-    """What one robot's `radio/rx` key carried, in arrival order: the frames and how many
-    bundles brought them."""
+    """The frames one robot's `radio/rx` key carried (in bundles), in arrival order."""
 
     frames: list[bytes] = field(default_factory=list)
-    bundles: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __call__(self, sample: zenoh.Sample) -> None:
         with self.lock:
             self.frames.extend(split_bundle(sample.payload.to_bytes()))
-            self.bundles += 1
 
     def sequences(self) -> list[int]:
         with self.lock:
