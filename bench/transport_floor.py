@@ -184,9 +184,10 @@ def stand_in_world(
                 taken.append((SwarmKeys.last_chunk(key), payload))
             if per_frame_rx:  # frame by frame, in arrival order, each alone
                 for sender, payload in taken:
+                    (alone,) = bundle_frames([payload])
                     for receiver, publisher in rx_pubs.items():
                         if receiver != sender:
-                            publisher.put(bundle_frames([payload])[0])
+                            publisher.put(alone)
                             relayed += 1
                             rx_puts += 1
                 continue
