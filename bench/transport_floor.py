@@ -10,8 +10,9 @@ no firmware at all, to find the floor under any robot process of this design:
 * N stand-in robots, each its own process logged in with its robot's credentials, declaring
   what a robot declares (sense and radio subscribers, act, radio and telemetry publishers,
   admin queryable, liveliness token and subscriber) and doing what its main loop does with
-  the network: the sense callback queues and wakes the loop, frames are queued, and for every
-  sense message the loop puts a frame (every fifth), the act, and telemetry (every fifth);
+  the network: the sense callback queues and wakes the loop, frames wait in a Zenoh ring
+  channel until the loop takes them, and for every sense message the loop puts a frame (every
+  fifth), the act, and telemetry (every fifth);
 * a stand-in world, its own process: every 10 ms it puts N sense messages and the clock, the
   truth every fifth tick, relays every frame to the N - 1 other robots on a thread of its own
   (as world/runtime.py `_relay_frames` does, without drawing links: the frames one relay pass
@@ -83,8 +84,10 @@ def drain(queue: deque[Any]) -> int:
 
 def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], name: str) -> None:
     """A robot process's messaging without its firmware (module docstring)."""
+    import zenoh
+
     from robot_firmware.net.keys import SwarmKeys
-    from robot_firmware.net.radio_bundle import split_bundle
+    from robot_firmware.net.radio_bundle import FRAME_RING, split_bundle
     from robot_firmware.net.session import open_client
     from swarm_config.credentials import read_credentials
 
@@ -102,16 +105,15 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
         sense.append((sample.payload.to_bytes(), time.monotonic_ns()))
         wake.set()
 
-    def on_frame(sample: Any) -> None:
-        frames.extend(split_bundle(sample.payload.to_bytes()))
-
     def on_token(sample: Any) -> None:
         tokens.append(str(sample.key_expr))
 
     answered = frames_taken = 0
     with open_client([endpoint], None, read_credentials(credentials)) as session:
         session.declare_subscriber(keys.sense(name), on_sense)
-        session.declare_subscriber(keys.radio_rx(name), on_frame)
+        ring = session.declare_subscriber(
+            keys.radio_rx(name), zenoh.handlers.RingChannel(FRAME_RING)
+        )
         session.declare_queryable(keys.admin(name, "*"), lambda query: None)
         act_pub = session.declare_publisher(keys.act(name))
         tx_pub = session.declare_publisher(keys.radio_tx(name))
@@ -126,6 +128,8 @@ def stand_in_robot(endpoint: str, credentials: Path, payloads: dict[str, Any], n
                 sense.popleft()
                 answered += 1
                 # As a real period: the frames taken, then frame, act and telemetry put.
+                while (bundle := ring.try_recv()) is not None:
+                    frames.extend(split_bundle(bundle.payload.to_bytes()))
                 frames_taken += drain(frames)
                 if answered % FIFTH == 0:
                     tx_pub.put(frame)

@@ -71,7 +71,7 @@ from robot_firmware.net.messages import (
     TelemetryMessage,
     refusal_of,
 )
-from robot_firmware.net.radio_bundle import split_bundle
+from robot_firmware.net.radio_bundle import FRAME_RING, split_bundle
 from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
 from robot_firmware.net.wire import (
     ActMessage,
@@ -91,8 +91,6 @@ from swarm_config.settings import LayeredSettings, describe_validation_error, pa
 log = logging.getLogger("swarm.robot")
 
 NS_PER_S = 1_000_000_000
-FRAME_RING = 1024
-"""Radio bundles Zenoh holds for the loop between two of its passes (the oldest dropped)."""
 FRAME_POLL_S = 0.0005
 """How often a lockstep tick waiting for announced radio frames looks for them."""
 

@@ -38,6 +38,8 @@ RECORD_HEADER = struct.Struct("<I")
 """The length before each frame of a bundle."""
 BUNDLE_BYTES_MAX = 64 << 10
 """The largest bundle `bundle_frames` makes, unless a single frame is longer."""
+FRAME_RING = 1024
+"""Bundles Zenoh holds for a robot's loop between two of its passes (the oldest dropped)."""
 
 
 def bundle_frames(frames: Iterable[bytes]) -> list[bytes]:
