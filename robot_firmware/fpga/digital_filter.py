@@ -97,7 +97,7 @@ MODE = Register(
     name="MODE",
     offset=0x00,
     access=Access.RW,
-    reset=FilterMode.BYPASS,
+    reset=int(FilterMode.BYPASS),
     fields=(
         Field(
             name="MODE",

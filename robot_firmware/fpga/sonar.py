@@ -208,7 +208,11 @@ class Sonar(Peripheral):
         clock_hz = max(1, self._clock_hz())
         timeout_ticks = self._get(TIMEOUT_TICKS)
         echo_s = None if self._echo_blocked else self._echo_time_s
-        width_ticks = None if echo_s is None else round(echo_s * clock_hz)
+        width_ticks = None
+        if echo_s is not None:
+            echo_ticks = echo_s * clock_hz
+            if echo_ticks < timeout_ticks + 1:  # a longer echo times out (and may not fit an int)
+                width_ticks = round(echo_ticks)
         if width_ticks is None or width_ticks > timeout_ticks:
             self._result_ticks = None
             self._remaining_ns = timeout_ticks * NS_PER_S // clock_hz

@@ -68,3 +68,10 @@ def test_fresh_fabric_drives_nothing() -> None:
     assert actuation.duty == (0.0, 0.0, 0.0, 0.0)
     assert actuation.enabled == (False, False, False, False)
     assert not actuation.watchdog_expired
+
+
+def test_every_register_word_is_a_plain_integer_at_reset() -> None:
+    """Not a subclass of int such as an IntEnum: a register holds bits (and the compiled
+    register model, robot_firmware/native.py, stores plain integers)."""
+    words = Fabric().bus.snapshot()
+    assert words and {type(word) for word in words.values()} == {int}

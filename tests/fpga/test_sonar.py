@@ -65,6 +65,17 @@ def test_echo_longer_than_the_timeout_is_a_timeout() -> None:
     assert read_ok(fabric, "sonar0", "EVENTS") == TIMEOUT
 
 
+@pytest.mark.parametrize("echo_s", [3.6e300, 1e300])
+def test_an_echo_too_long_for_any_count_of_ticks_is_a_timeout(echo_s: float) -> None:
+    """Finite, but times the clock it overflows a float (or an int's range of ticks)."""
+    fabric = Fabric()
+    echoes(fabric, echo_s)
+    write_ok(fabric, "sonar0", "TRIGGER", 1)
+    fabric.tick(30 * MS)
+    assert read_ok(fabric, "sonar0", "EVENTS") == TIMEOUT
+    assert read_ok(fabric, "sonar0", "WIDTH_TICKS") == 0
+
+
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1e-3])
 def test_malformed_echo_time_counts_as_no_echo(bad: float) -> None:
     fabric = Fabric()
