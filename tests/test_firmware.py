@@ -7,15 +7,18 @@ noise the two must fly the same swarm, up to what the register path and its timi
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from robot_firmware.control.controller import ControllerParams
 from robot_firmware.drivers import Drivers
+from robot_firmware.drivers.motors import MotorDriver
 from robot_firmware.firmware import Firmware, RobotMission
 from robot_firmware.fpga.fabric import Actuation, Fabric, FabricConfig
 from robot_firmware.net.frames import RadioFrame, Role, encode, initial_sequence, key_from_secret
@@ -308,11 +311,29 @@ def test_motors_are_off_within_200_ms_of_the_last_sense_message() -> None:
     assert robot.firmware.safe_stopped
 
 
+class _MotorsWhoseStopIsLost:
+    """The motor driver, but `disable` writes nothing (a wrapper, as a compiled driver
+    cannot be patched: robot_firmware/native.py)."""
+
+    def __init__(self, motors: MotorDriver) -> None:
+        self._motors = motors
+
+    def disable(self) -> None:
+        pass
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._motors, name)
+
+
 def test_the_watchdog_cuts_the_motors_when_the_safe_stop_writes_are_lost() -> None:
     """The motor driver's writes never reach the PWM (a stuck bus, a firmware bug): the
     watchdog, no longer kicked, still cuts every output in time."""
     robot, sim_t0_ns = _driving_follower()
-    robot.firmware.drivers.motors.disable = lambda: None  # type: ignore[method-assign]
+    firmware = robot.firmware
+    firmware.drivers = dataclasses.replace(
+        firmware.drivers,
+        motors=_MotorsWhoseStopIsLost(firmware.drivers.motors),  # type: ignore[arg-type]
+    )
     pins = _run_without_sense(robot, sim_t0_ns, 400 * MS)
     watchdog_cut_ms = _first_ms(pins, cut=True)
     print(f"\nmotor writes lost: watchdog cut at {watchdog_cut_ms} ms after the last sense")

@@ -30,6 +30,9 @@ import operator
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
+
+from mypy_extensions import mypyc_attr
 
 from robot_firmware.fpga.address_map import WINDOW_BYTES
 from robot_firmware.fpga.registers import WORD_BYTES, WORD_MASK, Peripheral, Register
@@ -68,11 +71,11 @@ class BusResult:
 
 @dataclass(frozen=True, slots=True)
 class BusAccess:
-    """One recorded access."""
+    """One recorded access, its address and value as the processor gave them."""
 
     op: BusOp
-    address: int
-    value: int
+    address: Any
+    value: Any
     error: BusErrorKind | None = None
 
 
@@ -85,6 +88,7 @@ class Decoded:
     register: Register
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Bus:
     """Maps peripherals at base addresses and dispatches 32-bit accesses to them."""
 
@@ -153,8 +157,8 @@ class Bus:
 
     # -- processor side --------------------------------------------------------------
 
-    def read(self, address: int) -> BusResult:
-        """Read the 32-bit register at `address`."""
+    def read(self, address: object) -> BusResult:
+        """Read the 32-bit register at `address` (anything but an integer is a bus error)."""
         self.read_count += 1
         found = self._locate(BusOp.READ, address, 0)
         if isinstance(found, BusResult):
@@ -163,8 +167,9 @@ class Bus:
             return self._refuse(BusOp.READ, address, 0, BusErrorKind.READ_OF_WRITE_ONLY)
         return BusResult(found.peripheral.read(found.register.offset))
 
-    def write(self, address: int, value: int) -> BusResult:
-        """Write the 32-bit `value` to the register at `address`."""
+    def write(self, address: object, value: object) -> BusResult:
+        """Write the 32-bit `value` to the register at `address` (anything but integers is a
+        bus error)."""
         self.write_count += 1
         found = self._locate(BusOp.WRITE, address, value)
         if isinstance(found, BusResult):
@@ -179,7 +184,7 @@ class Bus:
         found.peripheral.write(found.register.offset, word)
         return BusResult(word)
 
-    def read_word(self, address: int) -> int | None:
+    def read_word(self, address: object) -> int | None:
         """As `read`: the word read, or None when the access is refused (counted, logged)."""
         if type(address) is int:
             known = self._readable.get(address)
@@ -190,12 +195,13 @@ class Bus:
         result = self.read(address)
         if result.error is not None:
             return None
-        found = self.decode(address)
-        if type(address) is int and found is not None:
-            self._readable[address] = (found.peripheral, found.register.offset)
+        if type(address) is int:
+            found = self.decode(address)
+            if found is not None:
+                self._readable[address] = (found.peripheral, found.register.offset)
         return result.value
 
-    def write_word(self, address: int, value: int) -> bool:
+    def write_word(self, address: object, value: object) -> bool:
         """As `write`: whether the write went through (False: refused, counted, logged)."""
         if type(address) is int and type(value) is int and 0 <= value <= WORD_MASK:
             known = self._writable.get(address)
@@ -206,16 +212,17 @@ class Bus:
                 return True
         if self.write(address, value).error is not None:
             return False
-        found = self.decode(address)
-        if type(address) is int and found is not None:
-            self._writable[address] = (found.peripheral, found.register.offset)
+        if type(address) is int:
+            found = self.decode(address)
+            if found is not None:
+                self._writable[address] = (found.peripheral, found.register.offset)
         return True
 
-    def _read_word_via_read(self, address: int) -> int | None:
+    def _read_word_via_read(self, address: object) -> int | None:
         result = self.read(address)
         return None if result.error is not None else result.value
 
-    def _write_word_via_write(self, address: int, value: int) -> bool:
+    def _write_word_via_write(self, address: object, value: object) -> bool:
         return self.write(address, value).error is None
 
     # -- introspection ---------------------------------------------------------------
@@ -274,6 +281,7 @@ class Bus:
         return BusResult(0, kind)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class RecordingBus(Bus):
     """A `Bus` that records every access, in order, with its outcome."""
 
@@ -281,15 +289,21 @@ class RecordingBus(Bus):
         super().__init__(window_bytes)
         self.accesses: list[BusAccess] = []
 
-    def read(self, address: int) -> BusResult:
+    def read(self, address: object) -> BusResult:
         result = super().read(address)
         self.accesses.append(BusAccess(BusOp.READ, address, result.value, result.error))
         return result
 
-    def write(self, address: int, value: int) -> BusResult:
+    def write(self, address: object, value: object) -> BusResult:
         result = super().write(address, value)
         self.accesses.append(BusAccess(BusOp.WRITE, address, value, result.error))
         return result
+
+    def read_word(self, address: object) -> int | None:
+        return self._read_word_via_read(address)
+
+    def write_word(self, address: object, value: object) -> bool:
+        return self._write_word_via_write(address, value)
 
     def writes(self) -> list[BusAccess]:
         """Recorded writes only."""

@@ -33,11 +33,19 @@ def tick_per_slice(fabric: Fabric, dt_ns: int, slice_ns: int) -> None:
         dt_ns -= step_ns
 
 
+def attributes(instance: object) -> dict[str, Any]:
+    """An instance's attributes: its `__dict__`, or, compiled by mypyc (robot_firmware/native.py),
+    the attributes its class declares."""
+    if hasattr(instance, "__dict__"):
+        return vars(instance)
+    return {name: getattr(instance, name) for name in type(instance).__mypyc_attrs__}  # type: ignore[attr-defined]
+
+
 def state(fabric: Fabric) -> dict[str, Any]:
     """Every register word, and every scalar attribute of every IP (its hidden timers)."""
     scalars = (int, float, bool, str, type(None))
     ips = {
-        peripheral.name: {k: v for k, v in vars(peripheral).items() if isinstance(v, scalars)}
+        peripheral.name: {k: v for k, v in attributes(peripheral).items() if isinstance(v, scalars)}
         for peripheral in fabric.peripherals
     }
     return {"now_ns": fabric.now_ns, "words": fabric.bus.snapshot(), "ips": ips}
