@@ -20,12 +20,17 @@ The warm figures repeat to a few per cent on a quiet machine, the cold ones to a
 (each run prints its total); `bench/robot_phases.py` and `bench/scale.py` say what a change is
 worth in a running swarm.
 
+The register model and drivers run as a robot runs them: compiled by mypyc when the build for
+their sources is there (robot_firmware/native.py); `SWARM_NATIVE=python` in the environment runs
+them from source, for a comparison (the header says which).
+
     .venv/bin/python bench/robot_period.py [--robots 12] [--periods 1500] [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import tempfile
@@ -43,6 +48,8 @@ if str(ROOT) not in sys.path:
 
 from machine import machine_lines  # noqa: E402
 
+os.environ.setdefault("SWARM_NATIVE", "mypyc")  # as `swarm up` starts a robot
+from robot_firmware import native  # noqa: E402
 from robot_firmware.net.wire import WireDropReason, encode_sense_rows, parse_act  # noqa: E402
 from robot_firmware.runtime import RobotConfig, RobotProcess  # noqa: E402
 from robot_firmware.tick_scheduler import RunTick  # noqa: E402
@@ -226,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
         f"# {args.robots}-robot wedge, {args.periods} periods after {WARM_UP_PERIODS} of "
         f"warm-up, median over robots, median of {args.repeats} runs"
     )
+    how = "compiled (mypyc)" if native.MODE == "mypyc" else "from source"
+    print(f"# register model and drivers: {how}")
     print()
     print(f"{'phase (us per control period)':32}{'warm':>10}{'cold':>10}{'cold/warm':>11}")
     rows = list(PHASES)

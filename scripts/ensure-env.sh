@@ -5,7 +5,9 @@
 # printed only when the installation fails.
 # Then the robot processes' control kernels are compiled ahead of time (numba.pycc, about a
 # minute) when no module for the current control sources is there (robot_firmware/control/aot.py);
-# if that fails the robots run numba's JIT instead, so it only warns.
+# if that fails the robots run numba's JIT instead, so it only warns.  Likewise their register
+# model and drivers are compiled with mypyc (robot_firmware/native_build.py, about a minute);
+# if that fails the robots run them from source.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
@@ -21,8 +23,18 @@ ensure_aot_kernels() {
         echo "warning: the ahead-of-time build failed (robots will use numba's JIT); see $venv/aot-kernels.log" >&2
     fi
 }
+ensure_native_build() {
+    if SWARM_NATIVE=python "$venv/bin/python" -m robot_firmware.native_build --check > /dev/null; then
+        return 0
+    fi
+    echo "compiling the robots' register model and drivers with mypyc (after an edit; about a minute)..." >&2
+    if ! SWARM_NATIVE=python "$venv/bin/python" -m robot_firmware.native_build > "$venv/native-build.log" 2>&1; then
+        echo "warning: the mypyc build failed (robots will run their register model from source); see $venv/native-build.log" >&2
+    fi
+}
 if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
     ensure_aot_kernels
+    ensure_native_build
     exit 0
 fi
 if ! "$python_bin" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)'; then
@@ -42,3 +54,4 @@ if ! {
 fi
 echo "$want" > "$stamp"
 ensure_aot_kernels
+ensure_native_build

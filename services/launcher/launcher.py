@@ -60,6 +60,7 @@ import zenoh
 from pydantic import ValidationError
 
 from robot_firmware.control.kernels import KERNELS_ENV
+from robot_firmware.native import NATIVE_ENV
 from robot_firmware.net.admin import AdminQueue, Handler
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import (
@@ -383,6 +384,8 @@ class Launcher:
             # Robots run the control kernels compiled ahead of time (no numba in the process);
             # the world and the rest keep numba's JIT (robot_firmware/control/kernels.py).
             env.setdefault(KERNELS_ENV, "aot")
+            # and their register model and drivers compiled by mypyc (robot_firmware/native.py).
+            env.setdefault(NATIVE_ENV, "mypyc")
         else:
             env[KERNELS_ENV] = "jit"  # the world's own kernels call the control kernels
         if self.tls is not None:

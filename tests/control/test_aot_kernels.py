@@ -8,11 +8,8 @@ module was not built for runs the Python function instead of the compiled one.
 from __future__ import annotations
 
 import json
-import os
 import pickle
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,21 +24,9 @@ from robot_firmware.control.controller import (
     control_step,
 )
 from robot_firmware.control.fuzzy import FuzzyRuleBase
+from tests.support.python_child import run_python
 
-ROOT = Path(__file__).resolve().parents[2]
 TOLERANCE = 1e-12
-
-
-def _run(code: str, env: dict[str, str], stdin: bytes = b"") -> subprocess.CompletedProcess[bytes]:
-    return subprocess.run(
-        [sys.executable, "-c", code],
-        input=stdin,
-        capture_output=True,
-        env={**os.environ, **env},
-        cwd=ROOT,
-        timeout=900,
-        check=False,
-    )
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +34,7 @@ def aot_built() -> Path:
     """The module for the current sources (built now, in the default place, if missing)."""
     module_path, _ = kernels.module_paths(kernels.source_hash())
     if not module_path.is_file():
-        built = _run(
+        built = run_python(
             "from robot_firmware.control.aot import main; main()", {"SWARM_KERNELS": "jit"}
         )
         assert built.returncode == 0, built.stderr.decode()
@@ -104,7 +89,7 @@ sys.stdout.buffer.write(pickle.dumps({
 
 def test_robot_process_runs_the_jit_tick_without_numba(aot_built: Path) -> None:
     cases = _cases(40)
-    ran = _run(AOT_STEPS, {"SWARM_KERNELS": "aot"}, pickle.dumps(cases))
+    ran = run_python(AOT_STEPS, {"SWARM_KERNELS": "aot"}, pickle.dumps(cases))
     assert ran.returncode == 0, ran.stderr.decode()
     got = pickle.loads(ran.stdout)
     assert got["mode"] == "aot"
@@ -142,7 +127,7 @@ def test_module_of_other_sources_is_not_loaded(aot_built: Path, tmp_path: Path) 
     shutil.copy(aot_built, module_path)
     exports_path.write_text(json.dumps({"source_hash": other_hash, "functions": {}}))
     code = "import sys; from robot_firmware.control import kernels; print(kernels.MODE)"
-    ran = _run(code, {"SWARM_KERNELS": "aot", kernels.AOT_DIR_ENV: str(tmp_path)})
+    ran = run_python(code, {"SWARM_KERNELS": "aot", kernels.AOT_DIR_ENV: str(tmp_path)})
     assert ran.returncode == 0, ran.stderr.decode()
     assert ran.stdout.decode().split() == ["jit"]
     note = ran.stderr.decode().strip().splitlines()
@@ -151,7 +136,7 @@ def test_module_of_other_sources_is_not_loaded(aot_built: Path, tmp_path: Path) 
 
 def test_unknown_kernel_mode_is_named_and_the_jit_runs() -> None:
     code = "from robot_firmware.control import kernels; print(kernels.MODE)"
-    ran = _run(code, {"SWARM_KERNELS": "fast"})
+    ran = run_python(code, {"SWARM_KERNELS": "fast"})
     assert ran.returncode == 0
     assert ran.stdout.decode().split() == ["jit"]
     assert "SWARM_KERNELS='fast' is not one of" in ran.stderr.decode()
@@ -215,6 +200,6 @@ print(kernels.MODE, ",".join(heavy) or "-")
 
 
 def test_swarm_robot_loads_neither_numba_nor_the_world(aot_built: Path) -> None:
-    ran = _run(ROBOT_IMPORTS, {"SWARM_KERNELS": "aot"})
+    ran = run_python(ROBOT_IMPORTS, {"SWARM_KERNELS": "aot"})
     assert ran.returncode == 0, ran.stderr.decode()
     assert ran.stdout.decode().split() == ["aot", "-"]

@@ -1,4 +1,5 @@
-"""Which way each process of `swarm up` runs the control kernels (SWARM_KERNELS)."""
+"""Which way each process of `swarm up` runs the control kernels (SWARM_KERNELS) and the
+register model (SWARM_NATIVE)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from robot_firmware.control.kernels import KERNELS_ENV
+from robot_firmware.native import NATIVE_ENV
 from services.launcher.launcher import Launcher, LaunchPlan
 from tests.support.stand_in_processes import StandInFactory, StandInProcess
 
@@ -27,6 +29,7 @@ def test_robots_run_the_ahead_of_time_kernels_and_the_world_the_jit(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.delenv(KERNELS_ENV, raising=False)
+    monkeypatch.delenv(NATIVE_ENV, raising=False)
     plan = LaunchPlan(
         scenario=PAPER, robots=("robot1", "robot2"), out_dir=tmp_path, dashboard=False
     )
@@ -37,7 +40,10 @@ def test_robots_run_the_ahead_of_time_kernels_and_the_world_the_jit(
         for name in names:
             launcher.start(name)
         modes = {name: env.get(KERNELS_ENV) for name, env in zip(names, factory.envs, strict=True)}
+        native = {name: env.get(NATIVE_ENV) for name, env in zip(names, factory.envs, strict=True)}
     finally:
         launcher.shutdown(grace_s=0.0)
     assert modes.pop("robot1") == "aot" and modes.pop("robot2") == "aot"
     assert modes and set(modes.values()) == {"jit"}
+    assert native.pop("robot1") == "mypyc" and native.pop("robot2") == "mypyc"
+    assert native and set(native.values()) == {None}
