@@ -21,7 +21,9 @@
 # pays the compile time (about 13 s) at its start.  The robots' kernels compiled ahead of time
 # (robot_firmware/control/aot.py: a robot process with SWARM_KERNELS=aot never imports numba)
 # go to SWARM_AOT_DIR=/opt/aot-kernels; that build needs a C compiler, so where the base image
-# has none it is skipped with a note and robots run numba's JIT from the cache.
+# has none it is skipped with a note and robots run numba's JIT from the cache.  The robots'
+# register model and drivers run from source here: their mypyc build (robot_firmware/native.py)
+# needs mypy, a development tool the image leaves out.
 
 ARG BASE_IMAGE=python:3.11-slim
 FROM ${BASE_IMAGE}
