@@ -14,6 +14,13 @@ every later SIGTERM.
 So the handler only notes the request (a plain attribute, no lock) and hands the `set` to a
 short thread of its own, which takes the lock once the main thread lets go of it; further
 signals find the request noted and return at once.
+
+The kernel hands a process's signal to any one of its threads that does not block it, Zenoh's
+own threads included.  Python then only notes it there, and its handler runs when the main
+thread next runs Python code.  A main thread asleep in an untimed `Event.wait` does not: a
+router so waiting was seen to outlive its killed launcher, its parent-death SIGTERM noted and
+never handled.  So a main thread with nothing else to do waits in `wait_for_stop`, which comes
+back to Python every `STOP_POLL_S`.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ from types import FrameType
 
 STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 """SIGHUP too: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish."""
+STOP_POLL_S = 0.2
+"""How often a main thread waiting for a stop runs the signal handlers other threads noted."""
 
 
 class StopOnSignal:
@@ -50,3 +59,10 @@ def stop_on_signals(
     for sig in signals:
         signal.signal(sig, handler)
     return handler
+
+
+def wait_for_stop(stop: threading.Event, poll_s: float = STOP_POLL_S) -> None:
+    """Wait in the main thread until `stop` is set, running every `poll_s` the handlers of
+    signals that landed on another thread (module docstring)."""
+    while not stop.wait(poll_s):
+        pass

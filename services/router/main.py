@@ -17,7 +17,7 @@ from robot_firmware.net.session import (
     router_config,
     zenoh_runtime_while_opening,
 )
-from services.stop_signals import stop_on_signals
+from services.stop_signals import stop_on_signals, wait_for_stop
 
 log = logging.getLogger("swarm.router")
 
@@ -40,5 +40,5 @@ def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
             f"router listening on {', '.join(listen) if listen else 'the config endpoints'}",
             flush=True,
         )
-        stop.wait()
+        wait_for_stop(stop)
     return 0

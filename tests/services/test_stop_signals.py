@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+import ctypes
+import os
+import platform
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -40,11 +44,11 @@ def test_a_signal_landing_while_its_thread_holds_the_events_lock_still_stops() -
 def test_each_stop_signal_ends_a_process_waiting_on_its_event(sig: signal.Signals) -> None:
     waiting = (
         "import threading\n"
-        "from services.stop_signals import stop_on_signals\n"
+        "from services.stop_signals import stop_on_signals, wait_for_stop\n"
         "stop = threading.Event()\n"
         "stop_on_signals(stop)\n"
         "print('waiting', flush=True)\n"
-        "stop.wait()\n"
+        "wait_for_stop(stop)\n"
         "print('stopped', flush=True)\n"
     )
     process = subprocess.Popen(
@@ -59,3 +63,76 @@ def test_each_stop_signal_ends_a_process_waiting_on_its_event(sig: signal.Signal
         process.kill()
     assert out.strip() == "stopped"
     assert process.returncode == 0
+
+
+def test_a_stop_signal_that_lands_on_another_thread_still_ends_the_wait() -> None:
+    """The kernel gives a process's signal to any thread that does not block it; Python notes
+    it there and runs the handler only when the main thread runs Python code again, which an
+    untimed `Event.wait` never does."""
+    waiting = (
+        "import signal, threading, time\n"
+        "from services.stop_signals import stop_on_signals, wait_for_stop\n"
+        "stop = threading.Event()\n"
+        "stop_on_signals(stop)\n"
+        "def signal_this_thread():\n"
+        "    time.sleep(0.5)  # the main thread is waiting by then\n"
+        "    signal.pthread_kill(threading.get_ident(), signal.SIGTERM)\n"
+        "    time.sleep(3600)\n"
+        "threading.Thread(target=signal_this_thread, daemon=True).start()\n"
+        "wait_for_stop(stop)\n"
+        "print('stopped', flush=True)\n"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-c", waiting], cwd=ROOT, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        out, _ = process.communicate(timeout=30)
+    finally:
+        process.kill()
+    assert out.strip() == "stopped"
+    assert process.returncode == 0
+
+
+TGKILL_SYSCALL = {"x86_64": 234, "aarch64": 131}
+"""Linux's tgkill(2) by machine: a signal to one thread of another process."""
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or platform.machine() not in TGKILL_SYSCALL,
+    reason="tgkill(2) is Linux's",
+)
+def test_a_router_ends_on_a_sigterm_that_lands_on_one_of_zenohs_threads() -> None:
+    """What a killed launcher's parent-death SIGTERM can do: land on a thread of Zenoh's."""
+    with subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli.main",
+            "router",
+            "--listen",
+            f"tcp/127.0.0.1:{_free_port()}",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+    ) as router:
+        try:
+            assert router.stdout is not None
+            assert router.stdout.readline().startswith("router listening")
+            threads = [int(tid) for tid in os.listdir(f"/proc/{router.pid}/task")]
+            zenoh_threads = [tid for tid in threads if tid != router.pid]
+            assert zenoh_threads, "the router runs no thread beside its main one"
+            libc = ctypes.CDLL(None, use_errno=True)
+            sent = libc.syscall(
+                TGKILL_SYSCALL[platform.machine()], router.pid, zenoh_threads[0], signal.SIGTERM
+            )
+            assert sent == 0, os.strerror(ctypes.get_errno())
+            assert router.wait(timeout=30) == 0
+        finally:
+            router.kill()
