@@ -54,6 +54,7 @@ from pydantic import (
     model_validator,
 )
 
+from robot_firmware import native
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
 from robot_firmware.drivers import Drivers
 from robot_firmware.firmware import Firmware, RobotMission, TickReport
@@ -544,7 +545,8 @@ class RobotProcess:
             "params": self._params_request,
             "fault": self._fault_request,
             "status": lambda _body: RobotStatusReply(
-                **self._telemetry_fields(self._sim_time_ns(time.monotonic_ns()))
+                **self._telemetry_fields(self._sim_time_ns(time.monotonic_ns())),
+                register_model=native.MODE,
             ),
         }
 

@@ -19,6 +19,9 @@ import pytest
 
 from robot_firmware import native
 from robot_firmware.fpga import bus
+from robot_firmware.net.admin import answer
+from robot_firmware.net.messages import RobotStatusReply
+from tests.fuzz.processes import make_robot, robot_credentials
 from tests.support.python_child import run_python
 
 
@@ -47,6 +50,17 @@ def test_this_process_runs_the_mode_it_asked_for() -> None:
     else:
         assert native.MODE == "python"
         assert str(bus.__file__).endswith("bus.py")
+
+
+def test_a_robots_status_says_how_it_runs_its_register_model(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    robot_credentials(tmp_path_factory.mktemp("credentials"))
+    robot = make_robot("robot2")
+    status = answer(robot.process.admin_handlers(), "status", b"")
+    assert isinstance(status, RobotStatusReply)
+    expected = "mypyc" if os.environ.get(native.NATIVE_ENV) == "mypyc" else "python"
+    assert status.register_model == expected
 
 
 def test_a_robot_process_loads_the_build_of_its_sources(native_built: Path) -> None:

@@ -248,9 +248,13 @@ class AdminOk(Message):
 
 
 class RobotStatusReply(TelemetryMessage):
-    """`admin/<robot>/status`: the robot's telemetry, now."""
+    """`admin/<robot>/status`: the robot's telemetry, now, and how it runs."""
 
     ok: Literal[True] = True
+    register_model: Literal["python", "mypyc"]
+    """How this robot runs its register model and drivers: from their source, or compiled by
+    mypyc (robot_firmware/native.py; a robot without the build for its sources runs them from
+    source)."""
 
 
 class RegsRequest(Message):

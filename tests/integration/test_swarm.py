@@ -25,6 +25,7 @@ from typing import Any
 import pytest
 import zenoh
 
+from robot_firmware import native
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
 from swarm_config.scenario import load_scenario
@@ -317,6 +318,23 @@ def test_every_swarm_process_runs_zenoh_on_one_runtime(live_swarm: LiveSwarm) ->
         assert all(thread.startswith("app-") for thread in threads[name]), (name, threads[name])
     assert {"rx-0", "rx-1"} <= set(threads["router"]), threads["router"]
     assert all(thread.startswith("rx-") for thread in threads["router"]), threads["router"]
+
+
+def test_the_robots_of_swarm_up_run_the_compiled_register_model(live_swarm: LiveSwarm) -> None:
+    """`swarm up` asks its robots for the mypyc build of the register model and drivers
+    (robot_firmware/native.py): each says so in its status, and maps the build's files."""
+    hash_ = native.source_hash()
+    if native.load_manifest(hash_) is None:
+        pytest.skip("no mypyc build for these sources (scripts/ensure-env.sh makes it)")
+    processes = live_swarm.all_running()["processes"]
+    build = str(native.build_dir(hash_))
+    for name in ROBOTS:
+        status = live_swarm.wait_for(lambda name=name: _query(live_swarm, name, "status"))
+        assert status["register_model"] == "mypyc", name
+        maps = Path(f"/proc/{processes[name]['pid']}/maps").read_text()
+        assert build in maps, name
+    world_maps = Path(f"/proc/{processes['world']['pid']}/maps").read_text()
+    assert build not in world_maps
 
 
 def _pid_alive(pid: int) -> bool:
