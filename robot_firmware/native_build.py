@@ -4,9 +4,10 @@
 
 Compiles the modules of `native.COMPILED_MODULES` from their sources into one directory named
 after `native.source_hash()`, with a manifest of the extension files; builds of other hashes
-there are removed.  --check only says whether the build for the current sources is there
-(exit 0) or not (1).  The build needs mypy (with its mypyc) and a C compiler, and about 35 s of
-CPU.
+there are removed, and so are the staging folders (`.native-*`) that builds killed half-way
+left more than `STALE_STAGING_S` ago.  --check only says whether the build for the current
+sources is there (exit 0) or not (1).  The build needs mypy (with its mypyc) and a C compiler,
+and about 35 s of CPU.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import json
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from robot_firmware.native import (
@@ -32,6 +34,25 @@ from robot_firmware.native import (
     source_path,
 )
 
+STALE_STAGING_S = 600.0
+"""A staging folder untouched this long belongs to no build that is still running."""
+
+
+def sweep_stale_staging(parent: Path, now_s: float | None = None) -> list[Path]:
+    """Remove the staging folders in `parent` that builds killed half-way left (untouched for
+    `STALE_STAGING_S`); a running build's own is younger.  Returns those removed."""
+    now_s = time.time() if now_s is None else now_s
+    removed = []
+    for staging in parent.glob(f".{BUILD_PREFIX}*"):
+        try:
+            stale = staging.is_dir() and now_s - staging.stat().st_mtime > STALE_STAGING_S
+        except FileNotFoundError:  # another build renamed or removed it meanwhile
+            continue
+        if stale:
+            shutil.rmtree(staging, ignore_errors=True)
+            removed.append(staging)
+    return removed
+
 
 def build(directory: Path | None = None) -> Path:
     """Compile `COMPILED_MODULES` with mypyc into the build directory of the current sources;
@@ -43,6 +64,7 @@ def build(directory: Path | None = None) -> Path:
     target = build_dir(hash_, directory)
     parent = target.parent
     parent.mkdir(parents=True, exist_ok=True)
+    sweep_stale_staging(parent)
     with tempfile.TemporaryDirectory(prefix="native-build-") as scratch_name:
         scratch = Path(scratch_name)
         extensions = mypycify(

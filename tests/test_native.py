@@ -13,12 +13,14 @@ import json
 import os
 import shutil
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from robot_firmware import native
 from robot_firmware.fpga import bus
+from robot_firmware.native_build import STALE_STAGING_S, sweep_stale_staging
 from robot_firmware.net.admin import answer
 from robot_firmware.net.messages import RobotStatusReply
 from tests.fuzz.processes import make_robot, robot_credentials
@@ -104,6 +106,20 @@ def test_an_incomplete_build_is_not_loaded(native_built: Path, tmp_path: Path) -
     manifest = json.loads((current / native.MANIFEST).read_text())
     (current / manifest["modules"]["robot_firmware.fpga.qep"]).unlink()
     assert native.load_manifest(native.source_hash(), tmp_path) is None
+
+
+def test_a_build_sweeps_only_the_staging_folders_of_builds_long_gone(tmp_path: Path) -> None:
+    left = tmp_path / f".{native.BUILD_PREFIX}killed"
+    running = tmp_path / f".{native.BUILD_PREFIX}running"
+    kept = native.build_dir("0" * 20, tmp_path)
+    for folder in (left, running, kept):
+        (folder / "robot_firmware").mkdir(parents=True)
+    now_s = time.time()
+    long_ago_s = now_s - STALE_STAGING_S - 60
+    for folder in (left, kept):
+        os.utime(folder, (long_ago_s, long_ago_s))
+    assert sweep_stale_staging(tmp_path, now_s) == [left]
+    assert not left.exists() and running.is_dir() and kept.is_dir()
 
 
 def test_an_unknown_mode_is_named_and_the_source_runs() -> None:
