@@ -13,6 +13,11 @@ are recorded and replayed in a child process of that kind, next to a child with 
 same steps; each child also reports what importing the robot process's modules costs in memory
 (VmRSS: ru_maxrss would count the parent's pages from before the exec).
 
+The tick above runs the register model and drivers from their source (SWARM_NATIVE=python, as
+this process imports them).  A robot process runs them compiled by mypyc (robot_firmware/
+native.py): two more children run the leader's whole tick each way, interleaved, on the same
+scenario.
+
     .venv/bin/python bench/firmware_tick.py [--ticks 1000] [--repeats 3]
 """
 
@@ -84,6 +89,54 @@ def _replay(setup: tuple[Any, ...], steps: list[tuple[Any, ...]], mode: str) -> 
         "imports_mib": float(imports_mib),
         "numba_loaded": float(numba_loaded == "True"),
     }
+
+
+REGISTER_MODEL = """
+import statistics, sys, time
+from pathlib import Path
+from robot_firmware import native
+from robot_firmware.net.frames import key_from_secret
+from services.sim.firmware_swarm import FirmwareSwarm
+from swarm_config.scenario import load_scenario
+ticks = int(sys.argv[1])
+swarm = FirmwareSwarm(load_scenario(Path("configs/scenarios/paper.yaml")), key_from_secret("bench"))
+for _ in range(50):
+    swarm.step()
+firmware = swarm.robots[0].firmware
+original_tick = firmware.control_tick
+spent = []
+def timed_tick(now_ns):
+    start = time.perf_counter()
+    report = original_tick(now_ns)
+    spent.append(time.perf_counter() - start)
+    return report
+firmware.control_tick = timed_tick
+for _ in range(ticks):
+    swarm.step()
+spent.sort()
+print(native.MODE, statistics.median(spent) * 1e6, spent[int(0.99 * (len(spent) - 1))] * 1e6)
+"""
+REGISTER_MODES = ("python", "mypyc")
+
+
+def _register_model_tick(ticks: int, mode: str) -> dict[str, float]:
+    """The leader's control tick (median and p99, us) in a child running the register model
+    and drivers one way (SWARM_NATIVE); the control step on numba's JIT, which the world engine
+    of the firmware swarm needs in the process."""
+    ran = subprocess.run(
+        [sys.executable, "-c", REGISTER_MODEL, str(ticks)],
+        capture_output=True,
+        env={**os.environ, "SWARM_NATIVE": mode},
+        cwd=ROOT,
+        check=True,
+    )
+    got_mode, median_us, p99_us = ran.stdout.decode().split()
+    if got_mode != mode:
+        raise SystemExit(
+            f"wanted the register model {mode}, the child ran {got_mode} "
+            f"(python -m robot_firmware.native_build builds it): {ran.stderr.decode()}"
+        )
+    return {"median_us": float(median_us), "p99_us": float(p99_us)}
 
 
 def _snapshot(control: OneRobotControl, t_s: float, sonar_fresh: bool) -> tuple[Any, ...]:
@@ -192,9 +245,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     rows: dict[str, list[dict[str, float]]] = {path: [] for path in PATHS}
+    register_rows: dict[str, list[dict[str, float]]] = {mode: [] for mode in REGISTER_MODES}
     for _ in range(args.repeats):
         for path in PATHS:
             rows[path].append(_measure(args.ticks, path))
+        for mode in REGISTER_MODES:
+            register_rows[mode].append(_register_model_tick(args.ticks, mode))
     median = {
         path: {k: statistics.median(r[k] for r in rows[path]) for k in rows[path][0]}
         for path in PATHS
@@ -232,6 +288,18 @@ def main() -> None:
     print(f"numba imported by the aot child: {'yes' if compiled['numba_in_aot'] else 'no'}")
     with_aot_us = compiled["tick_median_us"] - compiled["replay_jit_us"] + compiled["replay_aot_us"]
     print(f"control_tick median with the aot step (estimate): {with_aot_us:.1f} us")
+    print()
+    print("# the leader's whole tick in child processes (JIT control step): the register model")
+    print("# and drivers from source, and compiled by mypyc as a robot runs them")
+    print(f"{'':34}{'source':>10}{'mypyc':>10}{'ratio':>10}")
+    for label, key in (
+        ("control_tick median (us)", "median_us"),
+        ("control_tick p99 (us)", "p99_us"),
+    ):
+        source_us, compiled_us = (
+            statistics.median(r[key] for r in register_rows[mode]) for mode in REGISTER_MODES
+        )
+        print(f"{label:34}{source_us:>10.1f}{compiled_us:>10.1f}{compiled_us / source_us:>10.2f}")
     print()
     print("goal: control_tick median at most 100 us (compiled); budget at 100 Hz 10000 us")
 
