@@ -40,57 +40,53 @@ def test_a_signal_landing_while_its_thread_holds_the_events_lock_still_stops() -
     assert handler.requested
 
 
-@pytest.mark.parametrize("sig", STOP_SIGNALS, ids=[s.name for s in STOP_SIGNALS])
-def test_each_stop_signal_ends_a_process_waiting_on_its_event(sig: signal.Signals) -> None:
-    waiting = (
-        "import threading\n"
-        "from services.stop_signals import stop_on_signals, wait_for_stop\n"
-        "stop = threading.Event()\n"
-        "stop_on_signals(stop)\n"
-        "print('waiting', flush=True)\n"
-        "wait_for_stop(stop)\n"
-        "print('stopped', flush=True)\n"
-    )
+WAITING_CHILD = (
+    "import signal, threading, time\n"
+    "from services.stop_signals import stop_on_signals, wait_for_stop\n"
+    "stop = threading.Event()\n"
+    "stop_on_signals(stop)\n"
+    "{before_the_wait}"
+    "print('waiting', flush=True)\n"
+    "wait_for_stop(stop)\n"
+    "print('stopped', flush=True)\n"
+)
+"""A process that waits for its stop the way the router does."""
+
+
+def _run_waiting_child(before_the_wait: str = "", sig: signal.Signals | None = None) -> None:
+    """Run `WAITING_CHILD`, send it `sig` once it waits (if any), and check that it stopped."""
+    script = WAITING_CHILD.format(before_the_wait=before_the_wait)
     process = subprocess.Popen(
-        [sys.executable, "-c", waiting], cwd=ROOT, stdout=subprocess.PIPE, text=True
+        [sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE, text=True
     )
     try:
         assert process.stdout is not None
         assert process.stdout.readline().strip() == "waiting"
-        process.send_signal(sig)
+        if sig is not None:
+            process.send_signal(sig)
         out, _ = process.communicate(timeout=30)
     finally:
         process.kill()
     assert out.strip() == "stopped"
     assert process.returncode == 0
+
+
+@pytest.mark.parametrize("sig", STOP_SIGNALS, ids=[s.name for s in STOP_SIGNALS])
+def test_each_stop_signal_ends_a_process_waiting_on_its_event(sig: signal.Signals) -> None:
+    _run_waiting_child(sig=sig)
 
 
 def test_a_stop_signal_that_lands_on_another_thread_still_ends_the_wait() -> None:
     """The kernel gives a process's signal to any thread that does not block it; Python notes
     it there and runs the handler only when the main thread runs Python code again, which an
     untimed `Event.wait` never does."""
-    waiting = (
-        "import signal, threading, time\n"
-        "from services.stop_signals import stop_on_signals, wait_for_stop\n"
-        "stop = threading.Event()\n"
-        "stop_on_signals(stop)\n"
+    _run_waiting_child(
         "def signal_this_thread():\n"
         "    time.sleep(0.5)  # the main thread is waiting by then\n"
         "    signal.pthread_kill(threading.get_ident(), signal.SIGTERM)\n"
         "    time.sleep(3600)\n"
         "threading.Thread(target=signal_this_thread, daemon=True).start()\n"
-        "wait_for_stop(stop)\n"
-        "print('stopped', flush=True)\n"
     )
-    process = subprocess.Popen(
-        [sys.executable, "-c", waiting], cwd=ROOT, stdout=subprocess.PIPE, text=True
-    )
-    try:
-        out, _ = process.communicate(timeout=30)
-    finally:
-        process.kill()
-    assert out.strip() == "stopped"
-    assert process.returncode == 0
 
 
 TGKILL_SYSCALL = {"x86_64": 234, "aarch64": 131}
