@@ -21,6 +21,7 @@ from pydantic import BaseModel
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
+from services.output_folder import OutputFolderError, prepare_output_folder
 from services.real_time_hold import real_time_shortfalls
 from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
@@ -28,6 +29,7 @@ from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
     HOW_TO_GET_CREDENTIALS,
     OPERATOR,
+    PRIVATE_DIR_MODE,
     CredentialsError,
     ProcessCredentials,
     read_credentials,
@@ -88,7 +90,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         scenario = parse_scenario(
             {**scenario.model_dump(), **updates}, f"{args.scenario} with {given}"
         )
-    out_dir = Path(args.out)
+    out_dir = prepare_output_folder(Path(args.out), "--out")
     outputs = simulate_scenario(
         scenario, out_dir, compare=not args.no_compare, figures=not args.no_figures
     )
@@ -186,7 +188,7 @@ def _cmd_credentials(args: argparse.Namespace) -> int:
     scenario_file = Path(args.scenario or os.environ.get("SWARM_SCENARIO", DEFAULT_SCENARIO))
     directory = Path(args.dir)
     lock = None
-    if directory.exists():  # a directory a live `swarm up` writes into is left alone
+    if directory.is_dir():  # a directory a live `swarm up` writes into is left alone
         try:
             lock = RunDirectoryLock.acquire(directory, "credentials directory", "DIR")
         except RunDirectoryBusyError as exc:
@@ -210,6 +212,7 @@ def _write_credentials(args: argparse.Namespace, scenario_file: Path, directory:
     scenario = load_scenario(scenario_file)
     swarm = _swarm(args)
     listen = args.listen or [DEFAULT_TLS_ENDPOINT if args.tls else DEFAULT_ENDPOINT]
+    prepare_output_folder(directory, "DIR", mode=PRIVATE_DIR_MODE)
     try:
         tls_files, tls_note = _tls_files_for(args, directory, swarm, listen)
     except TlsError as exc:
@@ -344,7 +347,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
     scenario = load_scenario(world.scenario)
     only = _only_robots(args.only, scenario.name, scenario.robot_names)
     _check_across_hosts(args)
-    out_dir = Path(args.out)
+    out_dir = prepare_output_folder(Path(args.out), "--out")
     plan = LaunchPlan(
         scenario=world.scenario,
         robots=scenario.robot_names,
@@ -1100,7 +1103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         code: int = args.handler(args)
-    except (ScenarioError, UsageError, TlsError) as exc:
+    except (ScenarioError, UsageError, TlsError, OutputFolderError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

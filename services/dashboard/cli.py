@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from services.output_folder import OutputFolderError, prepare_output_folder
 from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
@@ -71,8 +72,10 @@ def run_dashboard(args: argparse.Namespace) -> int:
         config = DashboardConfig.from_sources(
             given, config_file=Path(args.config) if args.config else None
         )
+        if config.out_dir is not None:
+            prepare_output_folder(config.out_dir, "--out")
         service = DashboardService(config, scenario)
-    except (ScenarioError, SettingsError) as exc:
+    except (ScenarioError, SettingsError, OutputFolderError) as exc:
         return _usage_error("dashboard", str(exc))
     except ValueError as exc:
         return _usage_error("dashboard", f"invalid settings: {exc}")

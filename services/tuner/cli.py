@@ -47,6 +47,7 @@ from typing import TextIO
 
 import numpy as np
 
+from services.output_folder import OutputFolderError, prepare_output_folder
 from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
 from services.tuner.evaluation import ProgressCallback, snr_fitness_from_cost
 from services.tuner.fitness import evaluate_fitness
@@ -212,8 +213,6 @@ def run_tune(args: argparse.Namespace) -> int:
     try:
         algorithms = parse_algorithms(str(args.algo))
         scenario = load_scenario(scenario_path)
-        if out_dir.exists() and not out_dir.is_dir():
-            raise ValueError(f"--out {out_dir} exists and is not a folder")
         duration_s = (
             min(DEFAULT_EVALUATION_DURATION_S, scenario.duration_s)
             if args.duration is None
@@ -226,6 +225,12 @@ def run_tune(args: argparse.Namespace) -> int:
         for settings in all_settings:  # refuse a clash before any algorithm starts
             prepare_run_dir(out_dir / settings.algorithm, settings, bool(args.resume))
         cluster = None if args.ray is None else connect_cluster(str(args.ray))
+        try:
+            prepare_output_folder(out_dir, "--out")  # last: a refused run leaves no empty folder
+        except OutputFolderError:
+            if cluster is not None:
+                cluster.close()
+            raise
     except ScenarioError:
         raise
     except ValueError as exc:

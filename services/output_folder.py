@@ -1,0 +1,46 @@
+"""The folders the `swarm` commands write into: checked before any work starts.
+
+`swarm sim --out`, `swarm up --out`, `swarm tune --out`, `swarm dashboard --out` and the DIR of
+`swarm credentials` all name a folder that may not exist yet.  A path that cannot be one (a
+file, a path under a file, a read-only or pseudo file system, a folder without write
+permission) used to surface as a traceback from deep inside the run, in `swarm sim`'s case
+only after the whole simulation had run.  `prepare_output_folder` creates the folder up front
+and says in one line, naming the option, why it cannot.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+DEFAULT_FOLDER_MODE = 0o777
+"""The mode `mkdir` is given (less the umask), as `Path.mkdir` gives by default."""
+
+
+class OutputFolderError(ValueError):
+    """An output folder that cannot be created or written; the message names the option."""
+
+
+def prepare_output_folder(path: Path, option: str, *, mode: int = DEFAULT_FOLDER_MODE) -> Path:
+    """Create `path` and its parents (new folders get `mode`), and check this process can
+    write in it; returns `path`.
+
+    Raises OutputFolderError, whose message starts with `option` and the path, when `path` is
+    not a folder, cannot be created, or is not writable.
+    """
+    if path.exists() and not path.is_dir():
+        raise OutputFolderError(f"{option} {path} exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True, mode=mode)
+    except FileExistsError:  # a parent, or the path itself since the check, is a file
+        raise OutputFolderError(
+            f"{option} {path}: cannot create the folder (a part of the path is a file)"
+        ) from None
+    except OSError as exc:
+        raise OutputFolderError(
+            f"{option} {path}: cannot create the folder ({exc.strerror or exc})"
+        ) from None
+    # access(2) also refuses writes on a read-only file system, even to root.
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputFolderError(f"{option} {path}: this user cannot write in the folder")
+    return path

@@ -1,0 +1,87 @@
+"""Output folders (services/output_folder.py): made up front, or one line naming the option."""
+
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from services.cli.main import main
+from services.output_folder import OutputFolderError, prepare_output_folder
+from swarm_config.credentials import generate_credential_set, write_credential_set
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+def test_a_missing_folder_and_its_parents_are_made(tmp_path: Path) -> None:
+    folder = tmp_path / "a" / "b" / "run"
+    assert prepare_output_folder(folder, "--out") == folder
+    assert folder.is_dir()
+    assert prepare_output_folder(folder, "--out") == folder  # an existing folder is fine
+
+
+def test_a_new_folder_gets_the_mode_asked_for(tmp_path: Path) -> None:
+    folder = tmp_path / "private"
+    prepare_output_folder(folder, "DIR", mode=0o700)
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+
+
+def test_a_file_is_refused_and_left_as_it_was(tmp_path: Path) -> None:
+    file = tmp_path / "summary.json"
+    file.write_bytes(b"kept")
+    with pytest.raises(OutputFolderError, match=r"^--out .*json exists and is not a folder"):
+        prepare_output_folder(file, "--out")
+    with pytest.raises(OutputFolderError, match=r"^--out .*summary\.json/run: cannot create"):
+        prepare_output_folder(file / "run", "--out")
+    assert file.read_bytes() == b"kept"
+
+
+def test_a_folder_this_user_cannot_write_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # access(2) is what answers for a read-only file system or a folder of another user; this
+    # process may be root, which permissions do not stop, so the answer is given here.
+    monkeypatch.setattr(os, "access", lambda path, mode: False)
+    with pytest.raises(OutputFolderError, match="cannot write in the folder"):
+        prepare_output_folder(tmp_path, "--out")
+
+
+def _dashboard_credentials(tmp_path: Path) -> Path:
+    written = write_credential_set(
+        tmp_path / "credentials", generate_credential_set("lab", ["robot1", "robot2", "robot3"])
+    )
+    return written["dashboard"]
+
+
+@pytest.mark.parametrize("command", ["sim", "up", "tune", "dashboard", "credentials"])
+@pytest.mark.parametrize("under_a_file", [False, True], ids=["a file", "under a file"])
+def test_every_command_that_writes_a_folder_refuses_a_bad_one_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str, under_a_file: bool
+) -> None:
+    file = tmp_path / "taken"
+    file.write_bytes(b"kept")
+    target = str(file / "run" if under_a_file else file)
+    scenario = ["--scenario", str(PAPER)]
+    argv = {
+        "sim": ["sim", *scenario, "--duration", "1", "--out", target],
+        "up": ["up", *scenario, "--no-dashboard", "--duration", "1", "--out", target],
+        "tune": ["tune", *scenario, "--budget", "25", "--out", target],
+        "dashboard": [
+            "dashboard",
+            *scenario,
+            "--credentials",
+            str(_dashboard_credentials(tmp_path)),
+            "--out",
+            target,
+        ],
+        "credentials": ["credentials", *scenario, target],
+    }[command]
+    option = "DIR" if command == "credentials" else "--out"
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"swarm {command}: {option} {target}"), lines[0]
+    expected = "cannot create the folder" if under_a_file else "exists and is not a folder"
+    assert expected in lines[0]
+    assert file.read_bytes() == b"kept"
