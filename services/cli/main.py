@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel
 
+from robot_firmware.net.keys import check_name
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
 from services.output_folder import OutputFolderError, prepare_output_folder
@@ -522,10 +523,15 @@ def _ask_if_answered(
     `router_may_be_down`, no router let this command in: it is restarting)."""
     from robot_firmware.net.admin import CONNECT_TIMEOUT_S, RouterUnreachableError, ask
 
+    try:
+        check_name("process", target)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    swarm = _swarm(args)
     endpoint = _endpoints(args.connect)[0]
     credentials = _operator_credentials(args.credentials)
     try:
-        return ask(_swarm(args), endpoint, target, verb, body, args.timeout, credentials)
+        return ask(swarm, endpoint, target, verb, body, args.timeout, credentials)
     except RouterUnreachableError:
         if router_may_be_down:
             return None
@@ -719,13 +725,23 @@ def _cmd_params(args: argparse.Namespace) -> int:
     return _print_reply(_ask(args, args.robot, "params", body))
 
 
-def _int_literal(text: str) -> int:
+BUS_WORD_MAX = 0xFFFF_FFFF
+"""The largest address and word of the robots' 32-bit register bus."""
+
+
+def _bus_word(text: str) -> int:
+    """An address or a value of one 32-bit bus access (0x... for hex)."""
     try:
-        return int(text, 0)
+        number = int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"{text!r} is not an integer (use 0x... for hex)"
         ) from None
+    if not 0 <= number <= BUS_WORD_MAX:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} does not fit the 32-bit bus (0x0 to 0x{BUS_WORD_MAX:X})"
+        )
+    return number
 
 
 def _endpoints(given: str | None) -> list[str]:
@@ -747,8 +763,14 @@ def _operator_credentials(given: str | None) -> ProcessCredentials:
 
 
 def _swarm(args: argparse.Namespace) -> str:
+    """The swarm name of --swarm, else $SWARM_NAME, else lab; UsageError naming where a name
+    that cannot be a key chunk came from."""
+    source = "--swarm" if args.swarm else "$SWARM_NAME"
     swarm: str = args.swarm or os.environ.get("SWARM_NAME") or "lab"
-    return swarm
+    try:
+        return check_name("swarm", swarm)
+    except ValueError as exc:
+        raise UsageError(f"{source}: {exc}") from None
 
 
 def _cm(value: object) -> str:
@@ -990,8 +1012,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         ),
     )
     regs.add_argument("robot")
-    regs.add_argument("address", nargs="?", type=_int_literal, metavar="ADDR")
-    regs.add_argument("value", nargs="?", type=_int_literal, metavar="VALUE")
+    regs.add_argument("address", nargs="?", type=_bus_word, metavar="ADDR")
+    regs.add_argument("value", nargs="?", type=_bus_word, metavar="VALUE")
     admin_query_options(regs)
     regs.set_defaults(handler=_cmd_regs)
 

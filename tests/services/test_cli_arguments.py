@@ -1,0 +1,64 @@
+"""The live commands refuse, before they connect, what cannot be a key or a bus access."""
+
+import time
+from pathlib import Path
+
+import pytest
+
+from services.cli.main import main
+
+NOBODY = "tcp/127.0.0.1:9"
+"""An endpoint where no router listens: a command that got as far as connecting would wait."""
+
+
+def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    started = time.monotonic()
+    try:
+        status = main(argv)
+    except SystemExit as exc:  # argparse's own refusal
+        status = int(exc.code or 0)
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert "Traceback" not in err
+    # Refused before any connection: the endpoint above would take the 5 s connect time-out.
+    assert time.monotonic() - started < 4.0
+    return err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("address", "value", "named"),
+    [
+        ("-1", None, "argument ADDR: '-1' does not fit the 32-bit bus"),
+        ("0x100000000", None, "argument ADDR: '0x100000000' does not fit the 32-bit bus"),
+        ("0x0", "0x1FFFFFFFF", "argument VALUE: '0x1FFFFFFFF' does not fit the 32-bit bus"),
+        ("0x0", "-5", "argument VALUE: '-5' does not fit the 32-bit bus"),
+        ("nope", None, "argument ADDR: 'nope' is not an integer"),
+    ],
+)
+def test_a_bus_access_outside_32_bits_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], address: str, value: str | None, named: str
+) -> None:
+    argv = ["regs", "robot1", address, *([value] if value else []), "--connect", NOBODY]
+    assert named in _refused(argv, capsys)
+
+
+@pytest.mark.parametrize("target", ["", "**", "robot1/x", "Robot1"])
+@pytest.mark.parametrize("command", ["regs", "params"])
+def test_a_target_that_is_not_one_key_chunk_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], command: str, target: str
+) -> None:
+    line = _refused([command, target, "--connect", NOBODY], capsys)
+    assert line.startswith(f"swarm {command}: process name {target!r} must be 1-32 characters")
+
+
+def test_a_swarm_name_that_is_not_one_key_chunk_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    line = _refused(["status", "--swarm", "*", "--connect", NOBODY], capsys)
+    assert line.startswith("swarm status: --swarm: swarm name '*' must be")
+    monkeypatch.setenv("SWARM_NAME", "a/b")
+    line = _refused(["status", "--connect", NOBODY], capsys)
+    assert line.startswith("swarm status: $SWARM_NAME: swarm name 'a/b' must be")
+    line = _refused(["credentials", "--swarm", "**", str(tmp_path / "creds")], capsys)
+    assert line.startswith("swarm credentials: --swarm: swarm name '**' must be")
+    assert not (tmp_path / "creds").exists()
