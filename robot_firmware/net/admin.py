@@ -176,6 +176,6 @@ def reply_as_json(payload: bytes) -> dict[str, object] | None:
     """Any admin reply as a JSON object (for printing), None when it is not one."""
     try:
         data = json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         return None
     return data if isinstance(data, dict) else None

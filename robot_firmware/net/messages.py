@@ -510,7 +510,7 @@ def parse_reply(model: type[M], payload: bytes) -> M | AdminError | None:
     """An admin reply: `model` when ok, `AdminError` when refused, None when it fits neither."""
     try:
         data = json.loads(payload)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         return None
     if isinstance(data, dict) and data.get("ok") is False:
         try:

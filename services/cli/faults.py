@@ -379,7 +379,7 @@ def fault_from_json(text: str) -> Fault:
     """The fault of `swarm fault --json TEXT`."""
     try:
         data: Any = json.loads(text)
-    except ValueError as exc:
+    except (ValueError, RecursionError) as exc:
         raise FaultArgumentError(f"--json is not JSON: {exc}") from None
     if not isinstance(data, dict):
         raise FaultArgumentError("--json must be one JSON object with a 'fault' field")

@@ -122,7 +122,7 @@ def read_settings(path: Path) -> TuningSettings | None:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
         return TuningSettings(**data)
-    except (OSError, ValueError, TypeError):
+    except (OSError, ValueError, TypeError, RecursionError):
         return None
 
 

@@ -53,6 +53,9 @@ def test_replies_parse_as_their_model_or_as_a_refusal() -> None:
     assert parse_reply(WorldStatusReply, ok) is None  # an ok reply of another verb
     assert reply_as_json(ok) == {"ok": True, "killed": False}
     assert reply_as_json(b"[1, 2]") is None
+    nested_too_deep = b"[" * 100_000 + b"]" * 100_000  # json's parser recurses: RecursionError
+    assert parse_reply(KillReply, nested_too_deep) is None
+    assert reply_as_json(nested_too_deep) is None
 
 
 def test_telemetry_round_trips_and_tolerates_fields_it_does_not_know() -> None:

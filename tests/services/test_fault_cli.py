@@ -178,6 +178,7 @@ def test_admin_options_count_before_and_after_the_subcommand() -> None:
         (["--json", '{"fault": "kill", "process": "robot2", "extra": 1}'], "extra"),
         (["--json", '{"fault": "melt", "robot": "robot2"}'], "'melt' is not a fault"),
         (["--json", "{not json"], "--json is not JSON"),
+        (["--json", "[" * 100_000 + "]" * 100_000], "--json is not JSON"),
         (["--json", '"kill"'], "one JSON object"),
         (["--json", '{"fault": "heal"}', "heal"], "not both"),
         ([], "name a fault"),

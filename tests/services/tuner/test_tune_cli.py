@@ -12,7 +12,7 @@ import pytest
 from services.tuner import fuzzy_tuning
 from services.tuner.cli import add_tune_parser, parse_algorithms, run_tune
 from services.tuner.evaluation import FloatArray, Objective
-from services.tuner.fuzzy_tuning import read_convergence_csv
+from services.tuner.fuzzy_tuning import read_convergence_csv, read_settings
 from swarm_config.scenario import (
     Scenario,
     ScenarioError,
@@ -200,3 +200,14 @@ def test_algorithm_lists_are_parsed_in_order() -> None:
     check: Callable[[str], list[str]] = parse_algorithms
     with pytest.raises(ValueError, match="one or more"):
         check(" , ")
+
+
+@pytest.mark.parametrize(
+    "stored",
+    ["{", "[1]", '{"algorithm": "ofa"}', "[" * 100_000 + "]" * 100_000],
+    ids=["cut short", "not an object", "not every setting", "nested too deep"],
+)
+def test_a_run_json_that_is_not_settings_reads_as_none(tmp_path: Path, stored: str) -> None:
+    path = tmp_path / "run.json"
+    path.write_text(stored, encoding="utf-8")
+    assert read_settings(path) is None  # resume then refuses it as unreadable, in one line
