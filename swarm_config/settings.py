@@ -85,13 +85,31 @@ def parse_yaml(text: str | bytes) -> object:
     return yaml.load(text, Loader=_SafeLoader)
 
 
-def read_yaml(path: Path, what: str) -> object:
-    """The data of a YAML (or JSON) file; SettingsError naming the file and the problem for
-    anything else: unreadable, not UTF-8, not YAML, nested too deep, an impossible date."""
+INPUT_FILE_BYTES_MAX = 8 << 20
+"""The largest scenario, campaign, fuzzy parameter or settings file read.  A generated scenario
+of 256 robots is some 40 KiB; a larger file, or an endless one such as /dev/zero, is refused
+before it fills the memory."""
+
+
+def read_input_file(path: Path, what: str, limit_bytes: int = INPUT_FILE_BYTES_MAX) -> bytes:
+    """The bytes of a file a user names, at most `limit_bytes` of them; SettingsError naming
+    the file when it cannot be read or is larger."""
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as handle:
+            data = handle.read(limit_bytes + 1)
     except OSError as exc:
         raise SettingsError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if len(data) > limit_bytes:
+        raise SettingsError(f"{path}: {what} is larger than {limit_bytes:,} bytes")
+    return data
+
+
+def read_yaml(path: Path, what: str) -> object:
+    """The data of a YAML (or JSON) file; SettingsError naming the file and the problem for
+    anything else: unreadable, too large, not UTF-8, not YAML, nested too deep, an impossible
+    date."""
+    try:
+        text = read_input_file(path, what).decode("utf-8")
     except UnicodeDecodeError:
         raise SettingsError(f"{path}: {what} is not UTF-8 text") from None
     try:

@@ -41,6 +41,7 @@ from swarm_config.settings import (
     ScenarioError,
     SettingsError,
     positive_seconds,
+    read_input_file,
     tcp_port,
 )
 from swarm_config.tls import (
@@ -715,13 +716,18 @@ def _cmd_regs(args: argparse.Namespace) -> int:
     return 0
 
 
+PARAMS_FILE_BYTES_MAX = 64 << 10
+"""The largest fuzzy parameter file `swarm params` sends: such a file is a few hundred bytes,
+and the router refuses any message over 1 MiB (services/router/access.py)."""
+
+
 def _cmd_params(args: argparse.Namespace) -> int:
     body: bytes | None = None
     if args.file is not None:
         try:
-            body = Path(args.file).read_bytes()
-        except OSError as exc:
-            raise UsageError(f"cannot read {args.file} ({exc.strerror})") from None
+            body = read_input_file(Path(args.file), "fuzzy parameter file", PARAMS_FILE_BYTES_MAX)
+        except SettingsError as exc:
+            raise UsageError(str(exc)) from None
     return _print_reply(_ask(args, args.robot, "params", body))
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from services.cli.main import main
+from services.cli.main import PARAMS_FILE_BYTES_MAX, main
 
 NOBODY = "tcp/127.0.0.1:9"
 """An endpoint where no router listens: a command that got as far as connecting would wait."""
@@ -62,3 +62,17 @@ def test_a_swarm_name_that_is_not_one_key_chunk_is_a_usage_error(
     line = _refused(["credentials", "--swarm", "**", str(tmp_path / "creds")], capsys)
     assert line.startswith("swarm credentials: --swarm: swarm name '**' must be")
     assert not (tmp_path / "creds").exists()
+
+
+def test_a_parameter_file_too_large_for_the_router_is_refused_before_sending(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    large = tmp_path / "fuzzy.yaml"
+    large.write_bytes(b"#" * (PARAMS_FILE_BYTES_MAX + 1))
+    line = _refused(["params", "robot1", str(large), "--connect", NOBODY], capsys)
+    assert line == (
+        f"swarm params: {large}: fuzzy parameter file is larger than "
+        f"{PARAMS_FILE_BYTES_MAX:,} bytes"
+    )
+    line = _refused(["params", "robot1", str(tmp_path), "--connect", NOBODY], capsys)
+    assert line.endswith("cannot read fuzzy parameter file (Is a directory)")

@@ -4,6 +4,7 @@ import pytest
 import yaml
 
 from swarm_config.scenario import ScenarioError, load_rule_base, load_scenario, parse_scenario
+from swarm_config.settings import INPUT_FILE_BYTES_MAX
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -73,6 +74,17 @@ def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
     broken.write_text("name: [unclosed\n")
     with pytest.raises(ScenarioError, match="not valid YAML"):
         load_scenario(broken)
+
+
+def test_a_file_too_large_or_endless_is_refused_before_it_is_read_whole(tmp_path: Path) -> None:
+    too_large = tmp_path / "large.yaml"
+    with too_large.open("wb") as handle:  # valid YAML: a comment, then one key
+        handle.write(b"#" + b" " * INPUT_FILE_BYTES_MAX + b"\nname: x\n")
+    with pytest.raises(ScenarioError, match=f"larger than {INPUT_FILE_BYTES_MAX:,} bytes"):
+        load_scenario(too_large)
+    if Path("/dev/zero").exists():
+        with pytest.raises(ScenarioError, match="/dev/zero: scenario file is larger than"):
+            load_scenario(Path("/dev/zero"))
 
 
 def test_fuzzy_parameter_file_resolves_next_to_the_scenario(tmp_path: Path) -> None:
