@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import sys
 import threading
@@ -22,6 +21,7 @@ from pydantic import BaseModel
 from robot_firmware.net.keys import check_name
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
+from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.real_time_hold import real_time_shortfalls
 from services.stop_signals import stop_on_signals
@@ -1118,10 +1118,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    logging.basicConfig(
-        level=os.environ.get("SWARM_LOG_LEVEL", "INFO"),
-        format="%(asctime)s %(name)s %(levelname)s %(message)s",
-    )
+    try:
+        set_up_logging()
+    except LogLevelError as exc:
+        print(f"swarm: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     end_with_the_launcher()
     given = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(given[0] if given else None)

@@ -3,19 +3,19 @@
 from __future__ import annotations
 
 import argparse
-import logging
-import os
 import sys
 from collections.abc import Sequence
 
 from services.dashboard.cli import add_dashboard_parsers
+from services.log_setup import LogLevelError, set_up_logging
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    logging.basicConfig(
-        level=os.environ.get("SWARM_LOG_LEVEL", "INFO"),
-        format="%(asctime)s %(name)s %(levelname)s %(message)s",
-    )
+    try:
+        set_up_logging()
+    except LogLevelError as exc:
+        print(f"python -m services.dashboard: {exc}", file=sys.stderr)
+        return 2
     parser = argparse.ArgumentParser(
         prog="python -m services.dashboard",
         description="Live Rerun dashboard of a swarm, and replay of its recordings.",
