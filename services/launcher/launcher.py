@@ -115,6 +115,11 @@ WORLD_MAX_QUICK_DEATHS = 5
 
 
 ROUTER_START_POLL_S = 1.0
+ROUTER_LOGIN_TIMEOUT_S = 60.0
+"""How long the launcher tries to log in to the router it started while that router runs: a
+router starts in well under a second, a few on a loaded machine; one that still refuses the
+launcher after this (another program's router on the port, a credentials set it was not
+started with) will not let it in, and the run stops with the router's log named."""
 """While the router comes up, the launcher tries to connect for this long at a time, and in
 between looks whether the router is still running and whether a stop was asked."""
 
@@ -178,6 +183,14 @@ class LaunchPlan:
     """The world's host: `tls/` endpoints where its router also takes other hosts' routers."""
     link_connect: Sequence[str] = ()
     """Another host: the world host's `tls/` endpoint its router links to (no world here)."""
+
+    def __post_init__(self) -> None:
+        # The processes start in the repository (`default_factory`), not where `swarm up` was
+        # typed: a relative path would name another file there, or none.
+        self.scenario = self.scenario.absolute()
+        self.out_dir = self.out_dir.absolute()
+        if self.credentials_dir is not None:
+            self.credentials_dir = self.credentials_dir.absolute()
 
     @property
     def uses_tls(self) -> bool:
@@ -507,9 +520,11 @@ class Launcher:
     def _launcher_session(self) -> zenoh.Session | None:
         """The launcher's own session, once the router it started lets it in; None when the
         router exited first (it could not listen: the port taken, a bad endpoint) or a stop
-        was asked meanwhile (Ctrl-C works while the router comes up)."""
+        was asked meanwhile (Ctrl-C works while the router comes up).  LaunchError when the
+        router runs but has not let the launcher in within `ROUTER_LOGIN_TIMEOUT_S`."""
         launcher = self.credentials.for_identity(LAUNCHER)
         ca = self.tls.ca_certificate if self.tls is not None else None
+        deadline_s = time.monotonic() + ROUTER_LOGIN_TIMEOUT_S
         while not self.stop.is_set():
             try:
                 return open_client(
@@ -521,6 +536,13 @@ class Launcher:
             except zenoh.ZError:
                 if not self.children["router"].running:
                     return None
+                if time.monotonic() > deadline_s:
+                    raise LaunchError(
+                        f"the router has run for {ROUTER_LOGIN_TIMEOUT_S:.0f} s without letting "
+                        f"the launcher in at {self.plan.endpoint}, so nothing else was started: "
+                        f"see {self.children['router'].log_path} (does another program answer "
+                        "there?)"
+                    ) from None
         return None
 
     def up(self, on_ready: Callable[[], None] | None = None) -> int:
@@ -529,7 +551,11 @@ class Launcher:
         Raises LaunchError, having stopped what it started, when the router exits before it
         lets the launcher in."""
         self.start("router")
-        opened = self._launcher_session()
+        try:
+            opened = self._launcher_session()
+        except LaunchError:
+            self.shutdown()
+            raise
         if opened is None:
             router = self.children["router"]
             status = None if router.process is None else router.process.poll()

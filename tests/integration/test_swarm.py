@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
+import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -29,7 +31,14 @@ from robot_firmware import native
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
 from swarm_config.scenario import load_scenario
-from tests.integration.conftest import PAPER, LiveSwarm, free_port, run_swarm, swarm_cli
+from tests.integration.conftest import (
+    PAPER,
+    ROOT,
+    LiveSwarm,
+    free_port,
+    run_swarm,
+    swarm_cli,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -135,6 +144,30 @@ def test_lockstep_with_the_same_seed_is_bit_for_bit_repeatable(tmp_path: Path) -
         tmp_path / "b" / "summary.json"
     ).read_bytes()
     assert first["radio"]["delivered"] > 0
+
+
+def test_swarm_up_typed_outside_the_repository_takes_its_relative_paths_from_there(
+    tmp_path: Path,
+) -> None:
+    """The launcher starts its processes in the repository; the paths a user typed relative
+    to another folder must still name the files there (before, the router refused the
+    launcher's login and the run never started)."""
+    shutil.copy(ROOT / "configs" / "scenarios" / "paper.yaml", tmp_path / "mine.yaml")
+    port = free_port()
+    result = subprocess.run(
+        [str(ROOT / "swarm"), "up", "--scenario", "mine.yaml", "--out", "run", "--lockstep"]
+        + ["--duration", "2", "--no-dashboard", "--port", str(port)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["duration_s"] == pytest.approx(2.0)
+    assert summary["scenario"] == "paper"
+    assert sorted((tmp_path / "run" / "logs").iterdir()) != []
+    assert not (ROOT / "run").exists()
 
 
 def test_max_speed_without_lockstep_is_a_usage_error(tmp_path: Path) -> None:

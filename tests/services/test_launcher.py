@@ -19,7 +19,14 @@ from robot_firmware.net.messages import (
     RestartReply,
     StopReply,
 )
-from services.launcher.launcher import WORLD_MAX_QUICK_DEATHS, Launcher, LaunchPlan
+from services.launcher import launcher as launcher_module
+from services.launcher.launcher import (
+    WORLD_MAX_QUICK_DEATHS,
+    Launcher,
+    LaunchError,
+    LaunchPlan,
+)
+from tests.integration.conftest import free_port
 from tests.support.stand_in_processes import StandInFactory, StandInProcess
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -209,3 +216,24 @@ def test_stop_and_cont_of_an_unknown_process_are_refused_and_nothing_changes(
     for child in launcher.children.values():
         assert child.running and not child.stopped
         assert isinstance(child.process, StandInProcess) and child.process.signals == []
+
+
+def test_a_router_that_runs_but_never_lets_the_launcher_in_ends_the_start_with_its_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The stand-in router runs and never listens: the launcher's logins fail as they would
+    # against a router that refuses them.
+    monkeypatch.setattr(launcher_module, "ROUTER_LOGIN_TIMEOUT_S", 2.0)
+    plan = LaunchPlan(
+        scenario=PAPER,
+        robots=("robot1", "robot2"),
+        out_dir=tmp_path,
+        dashboard=False,
+        endpoint=f"tcp/127.0.0.1:{free_port()}",
+    )
+    factory = StandInFactory()
+    launcher = Launcher(plan, factory=factory)  # type: ignore[arg-type]
+    with pytest.raises(LaunchError, match=r"without letting the launcher in .*/router\.log"):
+        launcher.up()
+    assert [child.pid for child in factory.started] == [factory.started[0].pid]  # only the router
+    assert not launcher.children["router"].running  # and it was stopped
