@@ -115,13 +115,13 @@ WORLD_MAX_QUICK_DEATHS = 5
 
 
 ROUTER_START_POLL_S = 1.0
+"""While the router comes up, the launcher tries to connect for this long at a time, and in
+between looks whether the router is still running and whether a stop was asked."""
 ROUTER_LOGIN_TIMEOUT_S = 60.0
 """How long the launcher tries to log in to the router it started while that router runs: a
 router starts in well under a second, a few on a loaded machine; one that still refuses the
 launcher after this (another program's router on the port, a credentials set it was not
 started with) will not let it in, and the run stops with the router's log named."""
-"""While the router comes up, the launcher tries to connect for this long at a time, and in
-between looks whether the router is still running and whether a stop was asked."""
 
 
 class LaunchError(Exception):
@@ -549,7 +549,7 @@ class Launcher:
         """Start everything and supervise until the world ends or a stop is asked.
 
         Raises LaunchError, having stopped what it started, when the router exits before it
-        lets the launcher in."""
+        lets the launcher in, or runs `ROUTER_LOGIN_TIMEOUT_S` without letting it in."""
         self.start("router")
         try:
             opened = self._launcher_session()
