@@ -48,6 +48,7 @@ import zenoh
 from pydantic import (
     ConfigDict,
     Field,
+    FilePath,
     PositiveFloat,
     ValidationError,
     field_validator,
@@ -87,7 +88,12 @@ from robot_firmware.tick_scheduler import LoopStallWatch, RunTick, SafeStop, Tic
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, CredentialsFile
 from swarm_config.faults import FAULT_ADAPTER, REGISTER_FAULT_ADAPTER
 from swarm_config.scenario import load_fuzzy_parameters, load_scenario
-from swarm_config.settings import LayeredSettings, describe_validation_error, parse_yaml
+from swarm_config.settings import (
+    Endpoints,
+    LayeredSettings,
+    describe_validation_error,
+    parse_yaml,
+)
 
 log = logging.getLogger("swarm.robot")
 
@@ -104,8 +110,8 @@ class RobotConfig(LayeredSettings):
     name: str
     swarm: str = "lab"
     scenario: Path
-    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
-    zenoh_config: Path | None = None
+    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
+    zenoh_config: FilePath | None = None
     credentials: CredentialsFile = Field(default=None, validate_default=True, repr=False)
     """Router user and password, the frames' secret and the run id: read from the file named
     by --credentials or $SWARM_CREDENTIALS_FILE (swarm_config/credentials.py)."""

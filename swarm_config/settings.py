@@ -13,10 +13,10 @@ import math
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Self
+from typing import Annotated, Any, ClassVar, Self
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError
 
 
 def describe_validation_error(
@@ -32,6 +32,53 @@ def describe_validation_error(
         message = item["msg"].removeprefix("Value error, ")
         lines.append(f"  {where}{hint}: {message}")
     return "\n".join(lines)
+
+
+ENDPOINT_PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream")
+"""The link protocols of a Zenoh endpoint `<protocol>/<address>[?<metadata>][#<config>]`."""
+
+
+def endpoint_problem(endpoint: str) -> str | None:
+    """Why `endpoint` is not an endpoint a process of the swarm can connect to or listen on, or
+    None: Zenoh itself refuses such a text only when the config is loaded, with a traceback in
+    Rust's words, or (a client) keeps trying to reach it."""
+    protocol, slash, rest = endpoint.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if not slash or not address:
+        return f"{endpoint!r} is not <protocol>/<address>, e.g. tcp/127.0.0.1:7447"
+    if protocol not in ENDPOINT_PROTOCOLS:
+        return f"{endpoint!r}: no protocol {protocol!r}; use one of {', '.join(ENDPOINT_PROTOCOLS)}"
+    if protocol == "unixsock-stream":
+        return None
+    host, colon, port = address.rpartition(":")
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        return f"{endpoint!r}: the address is not HOST:PORT with a port in 1-65535"
+    return None
+
+
+def _checked_endpoints(endpoints: list[str]) -> list[str]:
+    for endpoint in endpoints:
+        problem = endpoint_problem(endpoint)
+        if problem is not None:
+            raise ValueError(problem)
+    return endpoints
+
+
+Endpoints = Annotated[list[str], AfterValidator(_checked_endpoints)]
+"""A process's `connect` setting: Zenoh endpoints, each checked (`endpoint_problem`)."""
+
+
+def endpoint_list(text: str) -> str:
+    """An argparse type: one endpoint or a comma-separated list, each checked
+    (`endpoint_problem`); the text as given."""
+    endpoints = [part.strip() for part in text.split(",") if part.strip()]
+    if not endpoints:
+        raise argparse.ArgumentTypeError(f"{text!r} names no endpoint, e.g. tcp/127.0.0.1:7447")
+    for endpoint in endpoints:
+        problem = endpoint_problem(endpoint)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(problem)
+    return text
 
 
 def tcp_port(text: str) -> int:

@@ -73,6 +73,25 @@ def test_bad_value_names_the_field_and_its_variable() -> None:
     assert "telemetry_rate_hz (or $TELEMETRY_RATE_HZ)" in message
 
 
+@pytest.mark.parametrize(
+    "connect", ["garbage", "tcp/10.0.0.1", "tcp/10.0.0.1:0", "http/10.0.0.1:80", "tcp/:7447"]
+)
+def test_an_endpoint_that_cannot_be_one_names_the_field_and_its_variable(
+    tmp_path: Path, connect: str
+) -> None:
+    files = _credentials(tmp_path, "lab")
+    env = {
+        "ROBOT_NAME": "robot1",
+        "SWARM_SCENARIO": PAPER,
+        "ZENOH_CONNECT": f"tcp/127.0.0.1:7447, {connect}",
+        "SWARM_CREDENTIALS_FILE": str(files["robot1"]),
+    }
+    with pytest.raises(SettingsError, match=r"connect \(or \$ZENOH_CONNECT\): '"):
+        RobotConfig.from_sources({}, env)
+    ipv6 = RobotConfig.from_sources({}, {**env, "ZENOH_CONNECT": "tcp/[::1]:7447"})
+    assert ipv6.connect == ["tcp/[::1]:7447"]
+
+
 def test_robot_process_refuses_a_bad_setting_without_traceback(tmp_path: Path) -> None:
     result = subprocess.run(
         [

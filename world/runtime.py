@@ -88,6 +88,7 @@ import zenoh
 from pydantic import (
     ConfigDict,
     Field,
+    FilePath,
     PositiveFloat,
     ValidationError,
     ValidationInfo,
@@ -136,7 +137,7 @@ from swarm_config.credentials import (
 from swarm_config.faults import EventKind, RunEvent
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario, load_rule_base
-from swarm_config.settings import LayeredSettings, describe_validation_error
+from swarm_config.settings import Endpoints, LayeredSettings, describe_validation_error
 from world.checkpoint import (
     CHECKPOINT_DIR_NAME,
     CheckpointError,
@@ -201,8 +202,8 @@ class WorldConfig(LayeredSettings):
 
     swarm: str = "lab"
     scenario: Path = DEFAULT_SCENARIO_PATH
-    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
-    zenoh_config: Path | None = None
+    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
+    zenoh_config: FilePath | None = None
     lockstep: bool = False
     duration_s: PositiveFloat | None = None
     out_dir: Path | None = None

@@ -76,7 +76,13 @@ def zenoh_runtime_while_opening(setting: str) -> Iterator[None]:
 
 
 def _load(path: Path | None, default_name: str) -> zenoh.Config:
-    source = path if path is not None else CONFIG_DIR / default_name
+    """The config in `path` (FileNotFoundError when it names no file), else the project's
+    `default_name`, else Zenoh's defaults; zenoh.ZError for a file Zenoh cannot read."""
+    if path is not None:
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: not a config file (no such file, or not a file)")
+        return zenoh.Config.from_file(str(path))
+    source = CONFIG_DIR / default_name
     if source.exists():
         return zenoh.Config.from_file(str(source))
     return zenoh.Config()

@@ -40,6 +40,7 @@ from swarm_config.settings import (
     LayeredSettings,
     ScenarioError,
     SettingsError,
+    endpoint_list,
     positive_seconds,
     read_input_file,
     tcp_port,
@@ -751,7 +752,15 @@ def _bus_word(text: str) -> int:
 
 
 def _endpoints(given: str | None) -> list[str]:
-    return split_endpoints(given or os.environ.get("ZENOH_CONNECT", DEFAULT_ENDPOINT))
+    if given:
+        return split_endpoints(given)
+    from_environment = os.environ.get("ZENOH_CONNECT", "")
+    if not from_environment.strip():
+        return [DEFAULT_ENDPOINT]
+    try:
+        return split_endpoints(endpoint_list(from_environment))
+    except argparse.ArgumentTypeError as exc:
+        raise UsageError(f"$ZENOH_CONNECT: {exc}") from None
 
 
 def _operator_credentials(given: str | None) -> ProcessCredentials:
@@ -827,6 +836,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         )
         p.add_argument(
             "--connect",
+            type=endpoint_list,
             metavar="ENDPOINTS",
             help=f"router endpoint(s), comma separated (default: {DEFAULT_ENDPOINT}, "
             "$ZENOH_CONNECT)",
@@ -927,12 +937,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     up.add_argument(
         "--listen",
+        type=endpoint_list,
         metavar="ENDPOINT",
         help="the world's host: where its router also takes the other hosts' routers, "
         "tls/ADDRESS:PORT (an address its router certificate names; docs/multi-host.md)",
     )
     up.add_argument(
         "--connect",
+        type=endpoint_list,
         metavar="ENDPOINT",
         help="join a world that runs on another host: link this host's router to that host's "
         "--listen endpoint (tls/HOST:PORT) and start only the robots of --only, no world",
@@ -957,6 +969,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     creds.add_argument(
         "--listen",
         action="append",
+        type=endpoint_list,
         metavar="ENDPOINT",
         help=f"the router config's listen endpoint (repeatable; default {DEFAULT_ENDPOINT}, "
         f"with --tls {DEFAULT_TLS_ENDPOINT})",
@@ -1095,6 +1108,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     router.add_argument(
         "--listen",
         action="append",
+        type=endpoint_list,
         metavar="ENDPOINT",
         help="endpoint to listen on (repeatable), e.g. tcp/127.0.0.1:7447",
     )

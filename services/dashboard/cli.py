@@ -23,7 +23,7 @@ from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
 )
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, ScenarioError, load_scenario
-from swarm_config.settings import SettingsError, tcp_port
+from swarm_config.settings import SettingsError, endpoint_list, tcp_port
 
 EXIT_USAGE = 2
 DEFAULT_SCENARIO = str(DEFAULT_SCENARIO_PATH)
@@ -187,6 +187,7 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
     )
     dashboard.add_argument(
         "--connect",
+        type=endpoint_list,
         metavar="ENDPOINTS",
         help=f"router endpoint(s), comma separated (default: $ZENOH_CONNECT or {DEFAULT_ENDPOINT})",
     )

@@ -39,7 +39,14 @@ from urllib.parse import quote
 
 import rerun as rr
 import zenoh
-from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    ConfigDict,
+    Field,
+    FilePath,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
@@ -61,7 +68,7 @@ from swarm_config.credentials import (
 )
 from swarm_config.faults import RunEvent
 from swarm_config.scenario import DEFAULT_SCENARIO_PATH, Scenario
-from swarm_config.settings import LayeredSettings
+from swarm_config.settings import Endpoints, LayeredSettings
 
 log = logging.getLogger("swarm.dashboard")
 
@@ -80,8 +87,8 @@ class DashboardConfig(LayeredSettings):
 
     scenario: Path = DEFAULT_SCENARIO_PATH
     swarm: str = "lab"
-    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
-    zenoh_config: Path | None = None
+    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT], min_length=1)
+    zenoh_config: FilePath | None = None
     host: str = Field(default="127.0.0.1", min_length=1)
     """Host name or address of this machine as the browser reaches it (printed in the URL)."""
     web_port: int = Field(default=9090, ge=1, le=65535)

@@ -26,7 +26,11 @@ def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
     zenoh.init_log_from_env_or("error")
     stop = threading.Event()
     stop_on_signals(stop)
-    config = router_config(listen, config_file)
+    try:
+        config = router_config(listen, config_file)
+    except (zenoh.ZError, OSError) as exc:  # a user's file or endpoint: one line, no traceback
+        log.error("cannot use the router config %s: %s", config_file or "(default)", exc)
+        return 2
     try:
         with zenoh_runtime_while_opening(ROUTER_ZENOH_RUNTIME):
             session = zenoh.open(config)

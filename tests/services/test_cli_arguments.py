@@ -1,5 +1,7 @@
 """The live commands refuse, before they connect, what cannot be a key or a bus access."""
 
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -7,6 +9,7 @@ import pytest
 
 from services.cli.main import PARAMS_FILE_BYTES_MAX, main
 
+ROOT = Path(__file__).resolve().parents[2]
 NOBODY = "tcp/127.0.0.1:9"
 """An endpoint where no router listens: a command that got as far as connecting would wait."""
 
@@ -76,3 +79,47 @@ def test_a_parameter_file_too_large_for_the_router_is_refused_before_sending(
     )
     line = _refused(["params", "robot1", str(tmp_path), "--connect", NOBODY], capsys)
     assert line.endswith("cannot read fuzzy parameter file (Is a directory)")
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["status", "--connect", "nonsense"], "argument --connect: 'nonsense' is not <protocol>"),
+        (["status", "--connect", ","], "argument --connect: ',' names no endpoint"),
+        (["regs", "robot1", "--connect", "foo/bar:1"], "no protocol 'foo'"),
+        (["router", "--listen", "tcp/127.0.0.1:99999"], "a port in 1-65535"),
+        (["credentials", "--listen", "tcp:7447", "DIR"], "argument --listen: 'tcp:7447' is not"),
+        (["up", "--connect", "tls/host"], "argument --connect: 'tls/host': the address is not"),
+    ],
+)
+def test_an_endpoint_that_cannot_be_one_is_refused_before_anything_connects(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, argv: list[str], named: str
+) -> None:
+    folder = tmp_path / "credentials"
+    argv = [str(folder) if part == "DIR" else part for part in argv]
+    assert named in _refused(argv, capsys)
+    assert not folder.exists()
+
+
+def test_a_zenoh_connect_that_cannot_be_one_is_refused_naming_the_variable(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("ZENOH_CONNECT", "garbage")
+    line = _refused(["status"], capsys)
+    assert line.startswith("swarm status: $ZENOH_CONNECT: 'garbage' is not <protocol>/<address>")
+
+
+def test_a_router_config_that_cannot_be_read_stops_the_router_in_one_line(tmp_path: Path) -> None:
+    not_zenoh = tmp_path / "router.json5"
+    not_zenoh.write_text("{ name: 1 }\n")
+    for config in (tmp_path / "missing.json5", tmp_path, not_zenoh):
+        result = subprocess.run(
+            [sys.executable, "-m", "services.cli.main", "router", "--config", str(config)],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=60,
+        )
+        assert result.returncode == 2, result.stderr
+        assert "Traceback" not in result.stderr
+        assert f"cannot use the router config {config}" in result.stderr
