@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +35,10 @@ _AUXILIARY_PREFIX = "auxiliary__"
 
 class CheckpointMismatchError(ValueError):
     """The checkpoint on disk was written by a run with a different setup."""
+
+
+class CheckpointDamagedError(ValueError):
+    """The checkpoint on disk cannot be read: cut short, overwritten, or not a checkpoint."""
 
 
 @dataclass(frozen=True)
@@ -96,8 +101,26 @@ def save_checkpoint(path: str | os.PathLike[str], checkpoint: RunCheckpoint) -> 
 
 
 def load_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:
-    """Read a checkpoint written by :func:`save_checkpoint`."""
-    with np.load(path, allow_pickle=False) as archive:
+    """Read a checkpoint written by :func:`save_checkpoint`.
+
+    CheckpointMismatchError for another format; CheckpointDamagedError for a file that is not
+    a whole checkpoint (cut short, overwritten, not an archive, a field missing).
+    """
+    try:
+        return _read_checkpoint(path)
+    except CheckpointMismatchError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, RecursionError) as exc:
+        # ValueError: also numpy's refusal of an object array, which a checkpoint never holds.
+        raise CheckpointDamagedError(
+            f"{os.fspath(path)} is damaged ({type(exc).__name__}) and cannot be resumed: move "
+            "it away to start that run over"
+        ) from None
+
+
+def _read_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:
+    # Opened here, not by np.load, which leaves its file open when the archive is not one.
+    with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
         version = int(archive["format_version"])
         if version != CHECKPOINT_FORMAT_VERSION:
             raise CheckpointMismatchError(

@@ -8,7 +8,11 @@ import pytest
 from services.tuner import checkpoint as checkpoint_module
 from services.tuner.baselines import ParticleSwarm
 from services.tuner.benchmark_functions import rastrigin
-from services.tuner.checkpoint import CheckpointMismatchError, load_checkpoint
+from services.tuner.checkpoint import (
+    CheckpointDamagedError,
+    CheckpointMismatchError,
+    load_checkpoint,
+)
 from services.tuner.evaluation import ProgressCallback
 from services.tuner.generational import run_population_algorithm
 from services.tuner.registry import ALGORITHMS
@@ -71,6 +75,34 @@ def test_checkpoint_of_a_different_run_is_refused(tmp_path: Path) -> None:
         ALGORITHMS["pso"](rastrigin, 3, 300, 1, path)
     with pytest.raises(CheckpointMismatchError):
         ALGORITHMS["ga"](rastrigin, 3, 300, 2, path)
+
+
+@pytest.mark.parametrize("damage", ["cut short", "overwritten", "emptied", "a field gone"])
+def test_a_damaged_checkpoint_is_refused_as_damaged_and_nothing_runs(
+    tmp_path: Path, damage: str
+) -> None:
+    path = tmp_path / "ga.npz"
+    ALGORITHMS["ga"](rastrigin, 3, 300, 1, path)
+    whole = path.read_bytes()
+    if damage == "cut short":
+        path.write_bytes(whole[: len(whole) // 2])
+    elif damage == "overwritten":
+        path.write_bytes(bytes(range(256)) * 20)
+    elif damage == "emptied":
+        path.write_bytes(b"")
+    else:
+        with np.load(path, allow_pickle=False) as archive:
+            kept = {key: archive[key] for key in archive.files if key != "positions"}
+        with path.open("wb") as handle:
+            np.savez(handle, **kept)
+
+    def must_not_run(x: np.ndarray) -> np.ndarray:
+        raise AssertionError("a damaged checkpoint must not start a run")
+
+    with pytest.raises(CheckpointDamagedError, match=r"ga\.npz is damaged .* move it away"):
+        load_checkpoint(path)
+    with pytest.raises(CheckpointDamagedError):
+        ALGORITHMS["ga"](must_not_run, 3, 300, 1, path)
 
 
 def test_failed_save_keeps_the_previous_checkpoint_and_leaves_no_temporary_file(
