@@ -350,7 +350,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
     scenario = load_scenario(world.scenario)
     only = _only_robots(args.only, scenario.name, scenario.robot_names)
     _check_across_hosts(args)
-    out_dir = prepare_output_folder(Path(args.out), "--out")
+    out_dir = Path(args.out)  # made by the launcher once the plan passes its checks
     plan = LaunchPlan(
         scenario=world.scenario,
         robots=scenario.robot_names,

@@ -78,6 +78,7 @@ from robot_firmware.net.messages import (
 from robot_firmware.net.session import open_client
 from services.launcher.orphans import LAUNCHER_PID_ENV
 from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
+from services.output_folder import prepare_output_folder
 from services.router.access import (
     ROUTER_CONFIG_FILE,
     check_router_links,
@@ -270,6 +271,8 @@ class Launcher:
         """The run directory and the credentials directory this run writes: one `swarm up`
         each (services/launcher/run_lock.py)."""
         plan = self.plan
+        # Here, after every check of the plan: a refused run leaves no folder behind.
+        prepare_output_folder(plan.out_dir, "--out")
         locks = [RunDirectoryLock.acquire(plan.out_dir, "run directory", "--out DIR")]
         if plan.across_hosts:
             return locks  # every host has its own copy of the set, and none is written
