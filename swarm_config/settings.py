@@ -74,10 +74,10 @@ def endpoint_list(text: str) -> str:
     endpoints = [part.strip() for part in text.split(",") if part.strip()]
     if not endpoints:
         raise argparse.ArgumentTypeError(f"{text!r} names no endpoint, e.g. tcp/127.0.0.1:7447")
-    for endpoint in endpoints:
-        problem = endpoint_problem(endpoint)
-        if problem is not None:
-            raise argparse.ArgumentTypeError(problem)
+    try:
+        _checked_endpoints(endpoints)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 
 
