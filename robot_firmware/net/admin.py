@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -48,13 +49,44 @@ class AdminCounters:
         return self.refused[AdminRefusal.HANDLER_FAILED]
 
 
+ADMIN_QUEUE_MAX = 64
+"""Requests that may wait for their owner's loop.  In a flood the callback answers the next
+ones at once, refused as `busy` (one ready-made reply), so that neither the queue nor the
+loop's work grows with the flood."""
+ADMIN_SERVE_BUDGET_S = 0.002
+"""The longest one `serve` answers for (it answers at least one request): the rest wait for
+the loop's next pass.  A fifth of a control period, so a flood of queries cannot hold a
+robot's control tick or the world's step back (before, a loop answered for as long as
+requests kept coming: ten seconds of a 10 s flood of `status` queries)."""
+_BUSY_REPLY = (
+    AdminError(
+        error=f"busy: {ADMIN_QUEUE_MAX} admin requests already wait for this process; ask again",
+        reason=AdminRefusal.BUSY,
+    )
+    .model_dump_json()
+    .encode()
+)
+
+
 class AdminQueue:
-    def __init__(self) -> None:
+    def __init__(
+        self,
+        serve_budget_s: float = ADMIN_SERVE_BUDGET_S,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
         self.counters = AdminCounters()
+        self.serve_budget_s = serve_budget_s
+        self._clock = clock
 
     def on_query(self, query: zenoh.Query) -> None:
-        """The queryable's callback: queue and return."""
+        """The queryable's callback: queue and return, or, when `ADMIN_QUEUE_MAX` requests
+        already wait, answer `busy` and return (counted under `refused`, by this thread
+        only)."""
+        if self._queries.qsize() >= ADMIN_QUEUE_MAX:
+            self.counters.refused[AdminRefusal.BUSY] += 1
+            query.reply(query.key_expr, _BUSY_REPLY)
+            return
         self._queries.put(query)
 
     @property
@@ -64,9 +96,11 @@ class AdminQueue:
         return not self._queries.empty()
 
     def serve(self, handlers: Mapping[str, Handler]) -> int:
-        """Answer every queued query; returns how many were answered."""
+        """Answer the queued queries for at most `serve_budget_s` (at least one); returns how
+        many were answered."""
         served = 0
-        while True:
+        deadline = self._clock() + self.serve_budget_s
+        while served == 0 or self._clock() < deadline:
             try:
                 query = self._queries.get_nowait()
             except queue.Empty:
@@ -76,6 +110,7 @@ class AdminQueue:
             reply = answer(handlers, verb, body, self.counters)
             query.reply(query.key_expr, reply.model_dump_json().encode())
             served += 1
+        return served
 
 
 def answer(

@@ -221,6 +221,8 @@ class AdminRefusal(enum.StrEnum):
     """The handler raised: a bug, answered by the dispatcher's safety net."""
     UNREACHABLE = "unreachable"
     """The process a request is forwarded to is not up, or did not answer in time."""
+    BUSY = "busy"
+    """Too many requests already wait for the process's loop (a flood): ask again."""
 
 
 def refusal_of(error: ValidationError) -> AdminRefusal:

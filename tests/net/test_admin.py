@@ -9,9 +9,10 @@ from pydantic import BaseModel
 
 from robot_firmware.fpga.address_map import BRIDGE_BASE
 from robot_firmware.fpga.fabric import Fabric
-from robot_firmware.net.admin import AdminQueue, answer, reply_as_json
+from robot_firmware.net.admin import ADMIN_QUEUE_MAX, AdminQueue, answer, reply_as_json
 from robot_firmware.net.messages import (
     AdminError,
+    AdminRefusal,
     KillReply,
     MessageDropReason,
     RegsAccessReply,
@@ -176,3 +177,59 @@ def test_the_admin_queue_says_when_a_query_waits_and_serves_it_once() -> None:
     assert len(query.replies) == 1 and b"stand-in" in query.replies[0]
     assert not admin.pending
     assert admin.serve({"status": status}) == 0
+
+
+class _TickingClock:
+    """A clock that moves `step_s` on every reading: a query costs one step to answer."""
+
+    def __init__(self, step_s: float) -> None:
+        self.now_s = 0.0
+        self.step_s = step_s
+
+    def __call__(self) -> float:
+        self.now_s += self.step_s
+        return self.now_s
+
+
+def test_one_serve_answers_for_its_time_budget_and_leaves_the_rest_for_the_next_pass() -> None:
+    admin = AdminQueue(serve_budget_s=0.0025, clock=_TickingClock(0.001))
+    queries = [_QueryStandIn("status") for _ in range(10)]
+    for query in queries:
+        admin.on_query(query)  # type: ignore[arg-type]
+    handlers = {"status": lambda _body: KillReply(killed=False)}
+    # The deadline is read at 1 ms (3.5 ms); the first query is answered unread, the next
+    # ones while a reading (2, 3, then 4 ms) is before it.
+    assert admin.serve(handlers) == 3
+    assert [len(q.replies) for q in queries] == [1, 1, 1] + [0] * 7
+    assert admin.pending
+    served = [admin.serve(handlers) for _ in range(4)]
+    assert served == [3, 3, 1, 0] and not admin.pending
+    assert all(len(q.replies) == 1 for q in queries)  # each answered once, in order
+
+
+def test_a_serve_with_no_budget_still_answers_one_query() -> None:
+    admin = AdminQueue(serve_budget_s=0.0, clock=_TickingClock(1.0))
+    for _ in range(3):
+        admin.on_query(_QueryStandIn("status"))  # type: ignore[arg-type]
+    handlers = {"status": lambda _body: KillReply(killed=False)}
+    assert [admin.serve(handlers) for _ in range(4)] == [1, 1, 1, 0]
+
+
+def test_a_flood_beyond_the_queue_is_answered_busy_at_once_and_not_queued() -> None:
+    admin = AdminQueue()
+    waiting = [_QueryStandIn("status") for _ in range(ADMIN_QUEUE_MAX)]
+    for query in waiting:
+        admin.on_query(query)  # type: ignore[arg-type]
+    flood = [_QueryStandIn("status") for _ in range(5)]
+    for query in flood:
+        admin.on_query(query)  # type: ignore[arg-type]
+    for query in flood:
+        assert len(query.replies) == 1
+        reply = parse_reply(KillReply, query.replies[0])
+        assert isinstance(reply, AdminError) and reply.reason == AdminRefusal.BUSY
+    assert admin.counters.refused[AdminRefusal.BUSY] == len(flood)
+    assert all(not query.replies for query in waiting)
+    admin.serve({"status": lambda _body: KillReply(killed=False)})
+    late = _QueryStandIn("status")
+    admin.on_query(late)  # type: ignore[arg-type]
+    assert not late.replies  # room again: queued, not refused
