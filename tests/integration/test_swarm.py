@@ -166,7 +166,7 @@ def test_swarm_up_typed_outside_the_repository_takes_its_relative_paths_from_the
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["duration_s"] == pytest.approx(2.0)
     assert summary["scenario"] == "paper"
-    assert sorted((tmp_path / "run" / "logs").iterdir()) != []
+    assert any((tmp_path / "run" / "logs").iterdir())
     assert not (ROOT / "run").exists()
 
 
