@@ -49,6 +49,7 @@ from pydantic import (
     field_validator,
 )
 
+from swarm_config.atomic_files import PRIVATE_FILE_MODE, write_file_atomically
 from swarm_config.settings import SettingsError, describe_validation_error
 
 CREDENTIALS_FILE_ENV: Final = "SWARM_CREDENTIALS_FILE"
@@ -69,7 +70,6 @@ SERVICE_IDENTITIES: Final = (ROUTER, WORLD, LAUNCHER, DASHBOARD, OPERATOR)
 RUN_ID_BYTES: Final = 8
 SWARM_KEY_BYTES: Final = 32
 PASSWORD_BYTES: Final = 32
-PRIVATE_FILE_MODE: Final = 0o600
 PRIVATE_DIR_MODE: Final = 0o700
 
 _HEX_DIGITS = frozenset("0123456789abcdef")
@@ -210,19 +210,8 @@ def credentials_path(directory: Path, identity: str) -> Path:
 
 def write_private_file(path: Path, data: bytes) -> None:
     """Write `data` to `path` atomically, readable and writable by the owner only from the
-    moment the file exists (a temporary file created with mode 0600, fsynced, renamed)."""
-    temporary = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, PRIVATE_FILE_MODE)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.chmod(temporary, PRIVATE_FILE_MODE)  # in case a umask or ACL widened it
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
+    moment the file exists (swarm_config/atomic_files.py); FileWriteError when it cannot."""
+    write_file_atomically(path, data, mode=PRIVATE_FILE_MODE)
 
 
 def make_private_dir(directory: Path) -> None:

@@ -26,9 +26,7 @@ import base64
 import hashlib
 import json
 import logging
-import os
 import re
-import tempfile
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -37,6 +35,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from swarm_config.atomic_files import PRIVATE_FILE_MODE, write_file_atomically
+from world.write_failures import WriteFailures
 
 log = logging.getLogger("swarm.world.checkpoint")
 
@@ -121,26 +122,12 @@ def decode_checkpoint(raw: bytes) -> dict[str, Any]:
 
 
 def write_bytes_atomically(path: Path, data: bytes) -> None:
-    """Write `data` to `path` durably: temporary file, fsync, rename, fsync of the directory.
+    """Write `data` to `path` durably: temporary file, fsync, rename, fsync of the directory
+    (swarm_config/atomic_files.py), private to the world's user.
 
     A reader (or a process restarted after a kill at any point) sees the old file or the new
-    one, never part of one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
+    one, never part of one; FileWriteError when it cannot be written."""
+    write_file_atomically(path, data, mode=PRIVATE_FILE_MODE)
 
 
 @dataclass(frozen=True)
@@ -212,10 +199,10 @@ class CheckpointWriter:
     returns at once; if the previous one is still being written, the newer replaces any that
     waits (only the newest matters)."""
 
-    def __init__(self, store: CheckpointStore) -> None:
+    def __init__(self, store: CheckpointStore, write_failures: WriteFailures | None = None) -> None:
         self.store = store
         self.written = 0
-        self.failures = 0
+        self.write_failures = write_failures or WriteFailures("checkpoint", log)
         self._pending: tuple[int, Mapping[str, object]] | None = None
         self._lock = threading.Lock()
         self._ready = threading.Condition(self._lock)
@@ -253,9 +240,9 @@ class CheckpointWriter:
             try:
                 self.store.save(tick, state)
                 self.written += 1
+                self.write_failures.succeeded()
             except OSError as exc:
-                self.failures += 1
-                log.error("checkpoint of tick %d not written: %s", tick, exc)
+                self.write_failures.failed(exc)
             finally:
                 with self._lock:
                     self._busy = False

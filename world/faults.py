@@ -71,6 +71,7 @@ from robot_firmware.net.messages import (
     ProcessRequest,
     refusal_of,
 )
+from swarm_config.atomic_files import write_file_atomically
 from swarm_config.faults import (
     FAULT_ADAPTER,
     PROCESS_ROLES,
@@ -87,6 +88,7 @@ from swarm_config.radio import LinkProfile
 from swarm_config.settings import describe_validation_error
 from world.checkpoint import CheckpointError, decode_array, encode_array
 from world.radio import LinkTable
+from world.write_failures import WriteFailures
 
 log = logging.getLogger("swarm.world.faults")
 
@@ -276,11 +278,17 @@ class FaultSchedule:
 
 
 class EventLog:
-    """The run's events, in memory and (with a path) in `events.jsonl`, durably appended."""
+    """The run's events, in memory and (with a path) in `events.jsonl`, durably appended.
+
+    A write that fails (a full disk) is counted and logged (`write_failures`) and the run goes
+    on with the event in memory; the next write that goes through rewrites the whole file from
+    memory, so the file holds every event again, none half written."""
 
     def __init__(self, path: Path | None) -> None:
         self.path = path
         self.events: list[RunEvent] = []
+        self.write_failures = WriteFailures("events.jsonl", log)
+        self._file_behind = False
 
     @property
     def count(self) -> int:
@@ -312,20 +320,35 @@ class EventLog:
                     len(self.events),
                     keep,
                 )
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with self.path.open("ab") as handle:
-            handle.truncate(offset)
-            handle.flush()
-            os.fsync(handle.fileno())
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with self.path.open("ab") as handle:
+                handle.truncate(offset)
+                handle.flush()
+                os.fsync(handle.fileno())
+        except OSError as exc:
+            self.write_failures.failed(exc)
+            self._file_behind = True
 
     def append(self, event: RunEvent) -> None:
         self.events.append(event)
         if self.path is None:
             return
-        with self.path.open("ab") as handle:  # events are rare: no file held open between them
-            handle.write(event.model_dump_json().encode() + b"\n")
-            handle.flush()
-            os.fsync(handle.fileno())
+        try:
+            if self._file_behind:
+                lines = b"".join(e.model_dump_json().encode() + b"\n" for e in self.events)
+                write_file_atomically(self.path, lines)
+            else:
+                with self.path.open("ab") as handle:  # events are rare: no file held open
+                    handle.write(event.model_dump_json().encode() + b"\n")
+                    handle.flush()
+                    os.fsync(handle.fileno())
+        except OSError as exc:
+            self.write_failures.failed(exc)
+            self._file_behind = True
+            return
+        self._file_behind = False
+        self.write_failures.succeeded()
 
 
 # -- telemetry in lockstep -----------------------------------------------------------------

@@ -159,6 +159,7 @@ from world.lockstep import LockstepBarrier, LockstepPacer, LockstepProfile
 from world.metrics import FormationLayout, reference_points, sample_errors
 from world.realtime_guard import LEAD_PERIODS, RealTimeGuard, SenseLateness
 from world.summary import build_summary, summarise_events, write_json_atomically
+from world.write_failures import EXIT_SUMMARY_NOT_WRITTEN, WriteFailures
 
 log = logging.getLogger("swarm.world")
 
@@ -430,6 +431,10 @@ class WorldProcess:
             else CheckpointStore(config.out_dir / CHECKPOINT_DIR_NAME)
         )
         self._checkpoint_writer: CheckpointWriter | None = None
+        self.checkpoint_failures = WriteFailures(
+            "checkpoint", logging.getLogger("swarm.world.checkpoint")
+        )
+        self.summary_failures = WriteFailures("summary.json", log)
         self.resumed_from: LoadedCheckpoint | None = None
         self.resumes: list[dict[str, float | int]] = []
         """Each restart of this run's world from a checkpoint: its time and tick."""
@@ -979,7 +984,9 @@ class WorldProcess:
                 self.scenario.radio.profile,
             )
             if self.checkpoints is not None:
-                self._checkpoint_writer = CheckpointWriter(self.checkpoints)
+                self._checkpoint_writer = CheckpointWriter(
+                    self.checkpoints, self.checkpoint_failures
+                )
             try:
                 if relay is None:
                     self._run_lockstep(session, clock_pub, truth_pub)
@@ -998,10 +1005,10 @@ class WorldProcess:
                     if self.checkpoints is not None and self.engine.t_ns > 0:
                         self._checkpoint_writer.submit(self.tick, self.checkpoint_state())
                     self._checkpoint_writer.close()
-                self.write_summary(final=True)
+                final_written = self.write_summary(final=True)
                 self._session = self._events_pub = None
                 token.undeclare()
-        return 0
+        return 0 if final_written else EXIT_SUMMARY_NOT_WRITTEN
 
     def _end_tick(self) -> int | None:
         if self.config.duration_s is None:
@@ -1334,10 +1341,27 @@ class WorldProcess:
         summary["run_events"] = summarise_events(self.event_log.events)
         return summary
 
-    def write_summary(self, final: bool = False) -> None:
-        if self.config.out_dir is not None:
-            path = self.config.out_dir / "summary.json"
-            write_json_atomically(path, self.summary(), durable=final)
+    def write_summary(self, final: bool = False) -> bool:
+        """Write summary.json (durably if `final`); False when it could not be written, which
+        is counted and logged (`summary_failures`) and leaves the previous file whole."""
+        if self.config.out_dir is None:
+            return True
+        summary = self.summary()
+        failures = self.write_failure_counts()
+        if failures:
+            summary["write_failures"] = failures
+        try:
+            write_json_atomically(self.config.out_dir / "summary.json", summary, durable=final)
+        except OSError as exc:
+            self.summary_failures.failed(exc)
+            return False
+        self.summary_failures.succeeded()
+        return True
+
+    def write_failure_counts(self) -> dict[str, int]:
+        """The run folder's writes that failed so far, per file; only files with failures."""
+        kinds = (self.summary_failures, self.checkpoint_failures, self.event_log.write_failures)
+        return {kind.what: kind.failures for kind in kinds if kind.failures}
 
     def _wait_serving_queries(self, timeout_s: float) -> bool:
         """Sleep up to `timeout_s`, answering admin queries meanwhile; True if stopping."""
@@ -1451,7 +1475,12 @@ class WorldProcess:
             return False
         if self._checkpoint_writer is not None:
             self._checkpoint_writer.flush()
-        self.checkpoints.save(self.tick, self.checkpoint_state())
+        try:
+            self.checkpoints.save(self.tick, self.checkpoint_state())
+        except OSError as exc:
+            self.checkpoint_failures.failed(exc)
+            return False
+        self.checkpoint_failures.succeeded()
         return True
 
     def hold(self, timeout_s: float) -> None:
@@ -1516,6 +1545,7 @@ class WorldProcess:
                 else None
             ),
             refused_input=self.refused_input(),
+            write_failures=self.write_failure_counts(),
         )
 
     def _net_request(self, payload: bytes) -> NetReply | AdminError:

@@ -15,14 +15,13 @@ old file or the new one, never half of one.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import get_args
 
 import numpy as np
 
+from swarm_config.atomic_files import write_file_atomically
 from swarm_config.faults import EventKind, RunEvent
 from swarm_config.scenario import Scenario
 from world.metrics import fitness_snr
@@ -148,22 +147,11 @@ def _clean(value: object) -> object:
 
 
 def write_json_atomically(path: Path, data: object, durable: bool = True) -> None:
-    """Write JSON via a temporary file and a rename, so readers never see half a file.
+    """Write `data` as JSON in one rename (swarm_config/atomic_files.py), so readers never see
+    half a file; FileWriteError, the old file untouched, when it cannot be written.
 
     durable=False skips the fsync: the file still survives a killed process (the page cache
     keeps it), only not a power cut; periodic checkpoints of a live run use that.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(_clean(data), indent=2, sort_keys=False, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            if durable:
-                os.fsync(handle.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; a summary is for everyone to read
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_file_atomically(path, text.encode("utf-8"), durable=durable)

@@ -418,6 +418,9 @@ class WorldStatusReply(AdminOk):
     lockstep_profile: LockstepProfileReport | None = None
     """Lockstep only: where the ticks' wall time went since time started."""
     refused_input: RefusedInput = RefusedInput()
+    write_failures: dict[str, int] = {}
+    """Writes of the run folder's files that failed (a full disk), per file: "summary.json",
+    "checkpoint", "events.jsonl"; the run goes on without them (docs/robustness.md)."""
 
 
 class NetProfileRequest(Message):

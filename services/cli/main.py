@@ -25,6 +25,7 @@ from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.real_time_hold import real_time_shortfalls
 from services.stop_signals import stop_on_signals
+from swarm_config.atomic_files import FileWriteError
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
     CREDENTIALS_FILE_ENV,
@@ -58,6 +59,7 @@ from swarm_config.tls import (
 )
 
 EXIT_USAGE = 2
+EXIT_WRITE_FAILED = 1
 ROUTER_BACK_WITHIN_S = 20.0
 """How long `swarm fault kill|restart router` waits for the launcher behind the new router."""
 
@@ -326,6 +328,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
     from services.launcher.launcher import Launcher, LaunchError, LaunchPlan
     from swarm_config.scenario import load_scenario
     from world.runtime import WorldConfig
+    from world.write_failures import EXIT_SUMMARY_NOT_WRITTEN
 
     endpoint = f"{'tls' if args.tls else 'tcp'}/127.0.0.1:{args.port}"
     # The world's settings, validated here once so that a mistake stops `swarm up` before
@@ -436,11 +439,24 @@ def _cmd_up(args: argparse.Namespace) -> int:
         print(f"stopped {', '.join(plan.started_robots)} after {wall_s:.1f} s of wall time")
         return code
     summary_path = out_dir / "summary.json"
+    final_lost = launcher.world_exit_code == EXIT_SUMMARY_NOT_WRITTEN
+    if final_lost:
+        print(
+            f"swarm up: the world could not write the run's final {summary_path} (is the disk "
+            "full, or the folder read-only?)",
+            file=sys.stderr,
+        )
+        code = EXIT_WRITE_FAILED
     try:
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         print(f"no readable {summary_path}: see {out_dir / 'logs'}/world.log", file=sys.stderr)
         return code or 1
+    if final_lost:
+        print(
+            f"what follows is from the last summary it wrote, at t = {summary['duration_s']:.1f} s",
+            file=sys.stderr,
+        )
     factor = summary.get("real_time_factor")
     if factor is None:  # lockstep: the speed-up over real time, start-up included
         factor = summary["duration_s"] / max(wall_s, 1e-9)
@@ -461,7 +477,8 @@ def _cmd_up(args: argparse.Namespace) -> int:
         )
     if summary["clock_mode"] == "real_time":
         _print_real_time_verdict(summary)
-    print(f"wrote {summary_path}")
+    if not final_lost:
+        print(f"wrote {summary_path}")
     return code
 
 
@@ -588,6 +605,12 @@ def _print_world_line(args: argparse.Namespace) -> None:
         f"refused from robots: {reply.refused_input.describe()}",
         file=sys.stderr,
     )
+    if reply.write_failures:
+        failed = ", ".join(f"{what} {n}" for what, n in reply.write_failures.items())
+        print(
+            f"world: writes of the run folder failed (is its disk full?): {failed}",
+            file=sys.stderr,
+        )
 
 
 def _cmd_kill(args: argparse.Namespace) -> int:
@@ -1149,6 +1172,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, UsageError, TlsError, OutputFolderError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except FileWriteError as exc:  # a full disk, a quota, a read-only file system
+        print(f"swarm {args.command}: {exc}", file=sys.stderr)
+        return EXIT_WRITE_FAILED
     except KeyboardInterrupt:
         print(f"swarm {args.command}: interrupted", file=sys.stderr)
         return 130

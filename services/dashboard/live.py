@@ -466,8 +466,16 @@ class DashboardService:
         finally:
             if session is not None:
                 session.close()
-            recording.flush(timeout_sec=10.0)
-            recording.disconnect()
+            try:
+                recording.flush(timeout_sec=10.0)
+                recording.disconnect()
+            except RuntimeError as exc:  # Rerun's file sink gave up: a full disk
+                log.error(
+                    "the recording %s ended early (%s): it holds what was written before",
+                    self.recording_path,
+                    exc,
+                )
+                code = code or 1
         log.info(
             "stopped: %d truth, %d telemetry, %d event, %d liveliness samples, %d rejected %s, "
             "%d dropped",

@@ -105,6 +105,7 @@ from swarm_config.tls import (
     read_tls_files,
     tls_dir,
 )
+from world.write_failures import EXIT_SUMMARY_NOT_WRITTEN
 
 log = logging.getLogger("swarm.launcher")
 
@@ -621,7 +622,8 @@ class Launcher:
     def supervise_world(self) -> int | None:
         """The run's exit status when the world has ended it, else None.
 
-        A clean exit (status 0) ends the run; a world killed through `kill` stays down until
+        A clean exit (status 0, or EXIT_SUMMARY_NOT_WRITTEN: the run ended but the final
+        summary could not be written) ends the run; a world killed through `kill` stays down until
         `restart`; any other exit is a death: the world is started again (it resumes from its
         checkpoint), unless it died `WORLD_MAX_QUICK_DEATHS` times in a row at its start.
         Without a world on this host (it runs elsewhere), None."""
@@ -631,8 +633,8 @@ class Launcher:
         exit_code = None if world.process is None else world.process.poll()
         if exit_code is None or world.killed:
             return None
-        if exit_code == 0:
-            return 0
+        if exit_code in (0, EXIT_SUMMARY_NOT_WRITTEN):  # the run ended either way
+            return exit_code
         quick = time.monotonic() - world.started_mono_s < WORLD_QUICK_DEATH_S
         self.world_quick_deaths = self.world_quick_deaths + 1 if quick else 0
         if self.world_quick_deaths >= WORLD_MAX_QUICK_DEATHS:
@@ -641,6 +643,13 @@ class Launcher:
         log.warning("the world exited (%d); restarting it", exit_code)
         self.restart("world")
         return None
+
+    @property
+    def world_exit_code(self) -> int | None:
+        """The world's exit status once it has ended (None while it runs, or with no world on
+        this host)."""
+        world = self.children.get("world")
+        return None if world is None or world.process is None else world.process.poll()
 
     def shutdown(self, grace_s: float = 5.0) -> None:
         """SIGTERM every child and wait for it: the dashboard, then the world (so its final

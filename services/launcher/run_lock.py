@@ -16,6 +16,8 @@ import fcntl
 import os
 from pathlib import Path
 
+from swarm_config.atomic_files import FileWriteError
+
 LOCK_FILE_NAME = ".swarm-up.lock"
 
 
@@ -36,7 +38,10 @@ class RunDirectoryLock:
         directory"), `instead` how to give this run another one (e.g. "--out DIR")."""
         directory.mkdir(parents=True, exist_ok=True)
         path = directory / LOCK_FILE_NAME
-        descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        except OSError as exc:  # a folder in its place, a read-only file system
+            raise FileWriteError(exc.errno, exc.strerror or str(exc), str(path)) from None
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -47,8 +52,12 @@ class RunDirectoryLock:
                 f"(pid {holder}): stop that one first (Ctrl-C in its terminal), or give this "
                 f"one another ({instead})"
             ) from None
-        os.ftruncate(descriptor, 0)
-        os.write(descriptor, f"{os.getpid()}\n".encode("ascii"))
+        try:
+            os.ftruncate(descriptor, 0)
+            os.write(descriptor, f"{os.getpid()}\n".encode("ascii"))
+        except OSError as exc:  # a full disk or quota: the pid does not fit
+            os.close(descriptor)
+            raise FileWriteError(exc.errno, exc.strerror or str(exc), str(path)) from None
         return cls(descriptor)
 
     def release(self) -> None:

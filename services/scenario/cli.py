@@ -14,11 +14,11 @@ command prints it in one line and exits with status 2, and no file is written.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
+from swarm_config.atomic_files import FileWriteError, write_file_atomically
 from swarm_config.generate import (
     FORMATIONS,
     MAX_ROBOTS,
@@ -65,12 +65,11 @@ def write_text_file(path: Path, text: str) -> None:
     whatever was there before."""
     if path.is_dir():
         raise ScenarioGenerationError(f"--out {path} is a directory; give a file name")
-    temporary = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    if not path.parent.is_dir():
+        raise ScenarioGenerationError(f"cannot write {path} (no folder {path.parent})")
     try:
-        temporary.write_text(text, encoding="utf-8")
-        os.replace(temporary, path)
-    except OSError as exc:
-        temporary.unlink(missing_ok=True)
+        write_file_atomically(path, text.encode("utf-8"))
+    except FileWriteError as exc:
         raise ScenarioGenerationError(f"cannot write {path} ({exc.strerror})") from None
 
 

@@ -3,7 +3,9 @@ Fig. 13 follower formation errors.  Errors come from the metrics module (ground 
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -11,13 +13,27 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
+from swarm_config.atomic_files import write_file_atomically
 from swarm_config.scenario import Scenario
 from world.metrics import FormationLayout, reference_points
 
 FloatArray = NDArray[np.float64]
 ROBOT_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2")
+
+
+def save_figure(figure: Figure, path: Path, **savefig_options: Any) -> Path:
+    """Render `figure` as PNG and put it at `path` in one rename, then close it: a killed or
+    starved process never leaves half an image; FileWriteError when it cannot be written."""
+    image = io.BytesIO()
+    try:
+        figure.savefig(image, format="png", **savefig_options)
+    finally:
+        plt.close(figure)
+    write_file_atomically(path, image.getvalue())
+    return path
 
 
 def colour(index: int) -> str:
@@ -71,10 +87,7 @@ def _paths_figure(
     ax.set_title(f"Fig. 11: paths ({scenario.name}); circles: bodies, x: formation slots")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(True, lw=0.3)
-    path = out_dir / "fig11_paths.png"
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, out_dir / "fig11_paths.png", dpi=110, bbox_inches="tight")
 
 
 def _leader_error_figure(t: FloatArray, errors: FloatArray, name: str, out_dir: Path) -> Path:
@@ -89,10 +102,9 @@ def _leader_error_figure(t: FloatArray, errors: FloatArray, name: str, out_dir: 
     ax_th.set_xlabel("t (s)")
     ax_th.grid(True, lw=0.3)
     ax_xy.set_title(f"Fig. 12: tracking error of the leader {name}")
-    path = out_dir / "fig12_leader_tracking_error.png"
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(
+        fig, out_dir / "fig12_leader_tracking_error.png", dpi=110, bbox_inches="tight"
+    )
 
 
 def _formation_error_figure(
@@ -111,7 +123,4 @@ def _formation_error_figure(
     ax.set_title("Fig. 13: formation errors of the followers (slot from the leader's true pose)")
     ax.legend(fontsize=8, ncol=2)
     ax.grid(True, lw=0.3)
-    path = out_dir / "fig13_formation_errors.png"
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, out_dir / "fig13_formation_errors.png", dpi=110, bbox_inches="tight")

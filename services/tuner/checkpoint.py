@@ -16,9 +16,9 @@ state; resuming with a different setup is refused.
 
 from __future__ import annotations
 
+import io
 import json
 import os
-import tempfile
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from services.tuner.evaluation import FloatArray, IntArray
+from swarm_config.atomic_files import PRIVATE_FILE_MODE, write_file_atomically
 
 CHECKPOINT_FORMAT_VERSION = 1
 _AUXILIARY_PREFIX = "auxiliary__"
@@ -68,7 +69,8 @@ def json_compatible(value: object) -> object:
 
 
 def save_checkpoint(path: str | os.PathLike[str], checkpoint: RunCheckpoint) -> None:
-    """Write ``checkpoint`` to ``path`` atomically (temporary file, then ``os.replace``)."""
+    """Write ``checkpoint`` to ``path`` durably in one rename (swarm_config/atomic_files.py);
+    FileWriteError, the previous checkpoint untouched, when it cannot be written."""
     destination = Path(path)
     arrays: dict[str, Any] = {
         "format_version": np.array(CHECKPOINT_FORMAT_VERSION),
@@ -85,19 +87,9 @@ def save_checkpoint(path: str | os.PathLike[str], checkpoint: RunCheckpoint) -> 
     }
     for name, values in checkpoint.auxiliary.items():
         arrays[_AUXILIARY_PREFIX + name] = values
-    destination.parent.mkdir(parents=True, exist_ok=True)
-    file_descriptor, temporary_name = tempfile.mkstemp(
-        prefix=destination.name + ".", suffix=".tmp", dir=destination.parent
-    )
-    try:
-        with os.fdopen(file_descriptor, "wb") as stream:
-            np.savez(stream, **arrays)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary_name, destination)
-    except BaseException:
-        Path(temporary_name).unlink(missing_ok=True)
-        raise
+    archive = io.BytesIO()
+    np.savez(archive, **arrays)
+    write_file_atomically(destination, archive.getvalue(), mode=PRIVATE_FILE_MODE)
 
 
 def load_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:

@@ -68,6 +68,7 @@ from services.tuner.fuzzy_tuning import (
     write_text_atomically,
 )
 from services.tuner.registry import ALGORITHMS
+from swarm_config.atomic_files import FileWriteError
 from swarm_config.scenario import Scenario, ScenarioError, load_scenario
 
 DEFAULT_ALGORITHM = "ofa"
@@ -79,6 +80,7 @@ then averages over 0-30 s: the approach from the starting poses, more than one l
 and one pass of the obstacle."""
 EXIT_INTERRUPTED = 130
 EXIT_CLUSTER_LOST = 1
+EXIT_WRITE_FAILED = 1
 
 
 class TuneArgumentError(ScenarioError, ValueError):
@@ -295,6 +297,14 @@ def _tune_and_report(
                 file=sys.stderr,
             )
             return EXIT_CLUSTER_LOST
+        except FileWriteError as exc:
+            progress.close()
+            print(
+                f"swarm tune: {exc}; {settings.algorithm} is checkpointed in {run_dir} up to its "
+                "last written generation; make room, then run the same command with --resume",
+                file=sys.stderr,
+            )
+            return EXIT_WRITE_FAILED
         except KeyboardInterrupt:
             progress.close()
             print(

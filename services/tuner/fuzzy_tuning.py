@@ -29,8 +29,6 @@ import csv
 import hashlib
 import json
 import math
-import os
-import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -46,6 +44,7 @@ from services.tuner.fitness import DEFAULT_COLLISION_PENALTY, evaluation_scenari
 from services.tuner.fuzzy_encoding import DIMENSION, to_parameters
 from services.tuner.registry import ALGORITHMS
 from services.tuner.result import OptimisationResult
+from swarm_config.atomic_files import write_file_atomically
 from swarm_config.scenario import Scenario
 
 CHECKPOINT_NAME = "checkpoint.npz"
@@ -127,16 +126,9 @@ def read_settings(path: Path) -> TuningSettings | None:
 
 
 def write_text_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path``, then move it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    descriptor, temporary = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(descriptor, "w", encoding="utf-8", newline="") as stream:
-            stream.write(text)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    """Replace ``path`` with ``text`` in one rename (swarm_config/atomic_files.py);
+    FileWriteError, the old file untouched, when it cannot be written."""
+    write_file_atomically(path, text.encode("utf-8"))
 
 
 def convergence_rows(result: OptimisationResult) -> list[dict[str, float | int]]:
@@ -378,6 +370,8 @@ def write_convergence_figure(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from services.sim.figures import save_figure
+
     figure, axes = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     for curve in curves:
         axes.step(
@@ -398,7 +392,4 @@ def write_convergence_figure(
     axes.grid(True, alpha=0.3)
     axes.legend(loc="lower right")
     figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)

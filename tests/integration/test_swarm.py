@@ -170,6 +170,50 @@ def test_swarm_up_typed_outside_the_repository_takes_its_relative_paths_from_the
     assert not (ROOT / "run").exists()
 
 
+def _lockstep_run(out: Path, seconds: float) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [str(ROOT / "swarm"), "up", "--out", str(out), "--lockstep", "--duration", str(seconds)]
+        + ["--no-dashboard", "--port", str(free_port())],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=180,
+    )
+
+
+def test_a_world_that_cannot_write_its_files_runs_to_the_end_and_says_so(tmp_path: Path) -> None:
+    """The run folder refuses every file the world writes (a folder where summary.json and
+    events.jsonl go, a file where the checkpoints go), as a full disk would.  Before, the
+    world died at its first periodic summary and the launcher restarted it every few
+    seconds, each start dying the same way, while every robot stood still."""
+    out = tmp_path / "run"
+    (out / "summary.json").mkdir(parents=True)
+    (out / "events.jsonl").mkdir()
+    (out / "checkpoints").write_text("in the way")
+    result = _lockstep_run(out, 3)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    assert f"the world could not write the run's final {out / 'summary.json'}" in result.stderr
+    assert result.stderr.count("started world") == 1  # never died, never restarted
+    assert "the world exited" not in result.stderr
+    world_log = (out / "logs" / "world.log").read_text()
+    for what in ("summary.json", "checkpoint", "events.jsonl"):
+        assert world_log.count(f"{what} not written") == 1, world_log  # once for the streak
+    assert "Traceback" not in world_log
+
+
+def test_writes_that_failed_during_a_run_are_counted_in_its_summary(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "checkpoints").write_text("in the way")
+    result = _lockstep_run(out, 2)
+    assert result.returncode == 0, result.stdout + result.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["duration_s"] == pytest.approx(2.0)
+    assert set(summary["write_failures"]) == {"checkpoint"}
+    assert summary["write_failures"]["checkpoint"] >= 4  # one every 0.5 s of simulated time
+
+
 def test_max_speed_without_lockstep_is_a_usage_error(tmp_path: Path) -> None:
     for command in (["up", "--out", str(tmp_path / "up")], ["world", "--duration", "1"]):
         refused = swarm_cli(*command, "--max-speed", "2")

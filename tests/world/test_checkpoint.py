@@ -241,7 +241,7 @@ def test_writer_thread_writes_the_newest_state_submitted(tmp_path: Path) -> None
     writer.close()
     loaded = store.load_latest()
     assert loaded is not None and loaded.tick == 29 and loaded.state == {"tick": 29}
-    assert 1 <= writer.written <= 29 and writer.failures == 0
+    assert 1 <= writer.written <= 29 and writer.write_failures.failures == 0
     assert len(store.paths()) <= 2
 
 
