@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import logging
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -412,10 +413,18 @@ class Launcher:
         return env
 
     def start(self, name: str) -> None:
+        """Start `name`'s process.  LaunchError when the host gives no process or log file
+        (the open-file limit, memory): the message says which resource."""
         child = self.children[name]
-        if child.log_file is None:
-            child.log_file = child.log_path.open("ab")
-        child.process = self.factory(child.argv, child.log_file, self._env(name))
+        try:
+            if child.log_file is None:
+                child.log_file = child.log_path.open("ab")
+            child.process = self.factory(child.argv, child.log_file, self._env(name))
+        except OSError as exc:
+            raise LaunchError(
+                f"cannot start {name}: {exc.strerror or exc} (the open-file limit is "
+                f"{resource.getrlimit(resource.RLIMIT_NOFILE)[0]}: `ulimit -n`)"
+            ) from None
         child.killed = False
         child.stopped = False
         child.exit_reported = False
@@ -574,16 +583,16 @@ class Launcher:
         with opened as session:
             session.declare_queryable(self.keys.admin("launcher", "*"), self._admin.on_query)
             token = session.liveliness().declare_token(self.keys.alive("launcher", "launcher"))
-            if "world" in self.children:
-                self.start("world")
-            for name in self.plan.started_robots:
-                self.start(name)
-            if "dashboard" in self.children:
-                self.start("dashboard")
-            if on_ready is not None:
-                on_ready()
             code = 0
-            try:
+            try:  # whatever fails from here, what did start is stopped before the launcher ends
+                if "world" in self.children:
+                    self.start("world")
+                for name in self.plan.started_robots:
+                    self.start(name)
+                if "dashboard" in self.children:
+                    self.start("dashboard")
+                if on_ready is not None:
+                    on_ready()
                 while not self.stop.is_set():
                     self._serve()
                     ended = self.supervise_world()

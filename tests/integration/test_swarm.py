@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import shutil
 import signal
 import socket
@@ -212,6 +213,33 @@ def test_writes_that_failed_during_a_run_are_counted_in_its_summary(tmp_path: Pa
     assert summary["duration_s"] == pytest.approx(2.0)
     assert set(summary["write_failures"]) == {"checkpoint"}
     assert summary["write_failures"]["checkpoint"] >= 4  # one every 0.5 s of simulated time
+
+
+def test_a_host_out_of_open_files_ends_the_start_in_one_line(tmp_path: Path) -> None:
+    """`swarm up` under an open-file limit of 12: the launcher can start the router but not
+    the next process (before, a traceback from `subprocess`)."""
+    port = free_port()
+
+    def few_open_files() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (12, 12))
+
+    result = subprocess.run(
+        [str(ROOT / "swarm"), "up", "--out", str(tmp_path), "--lockstep", "--duration", "2"]
+        + ["--no-dashboard", "--port", str(port)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=180,
+        preexec_fn=few_open_files,
+    )
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("swarm up: cannot start "), last
+    assert last.endswith("Too many open files (the open-file limit is 12: `ulimit -n`)"), last
+    with socket.socket() as probe:  # what did start was stopped: nothing listens on the port
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # past TIME_WAIT
+        probe.bind(("127.0.0.1", port))
 
 
 def test_max_speed_without_lockstep_is_a_usage_error(tmp_path: Path) -> None:
