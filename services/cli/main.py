@@ -578,6 +578,9 @@ WORLD_STATUS_TIMEOUT_S = 1.0
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
+    """The launcher's processes and the world's line; with a process, its own status."""
+    if args.process is not None:
+        return _print_reply(_ask(args, args.process, "status", None))
     code = _print_reply(_ask(args, "launcher", "status", None))
     _print_world_line(args)
     return code
@@ -1021,6 +1024,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         if name != "status":
             cmd.add_argument(
                 "process", help="a robot's name (e.g. robot2), world, router or dashboard"
+            )
+        else:
+            cmd.add_argument(
+                "process",
+                nargs="?",
+                help="a robot's name (e.g. robot2) or world: that process's own status as "
+                "JSON instead (a robot's: its telemetry now, deadline misses and jitter, "
+                "safe stops, frames taken and refused, the register model it runs)",
             )
         admin_query_options(cmd)
         cmd.set_defaults(handler=handler)

@@ -554,6 +554,7 @@ def test_no_secret_in_logs_summary_status_or_telemetry(live_swarm: LiveSwarm) ->
         "status replies": b"\n".join(replies),
         "telemetry": b"\n".join(telemetry[:200]),
         "swarm status": live.cli("status").stdout.encode(),
+        "swarm status robot2": live.cli("status", "robot2").stdout.encode(),
     }
     texts |= {f"logs/{p.name}": p.read_bytes() for p in (live.out / "logs").glob("*.log")}
     found = {name: sum(s.encode() in text for s in secrets) for name, text in texts.items()}
@@ -561,3 +562,5 @@ def test_no_secret_in_logs_summary_status_or_telemetry(live_swarm: LiveSwarm) ->
     assert len(secrets) == 8 + 1  # a password per identity, and the robots' shared key
     assert len(replies) == 5
     assert all(count == 0 for count in found.values()), found
+    robot2_status = json.loads(texts["swarm status robot2"])  # `swarm status PROCESS`
+    assert robot2_status["robot"] == "robot2" and robot2_status["timing"]["ticks"] > 0
