@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 from pydantic import (
     BaseModel,
@@ -37,6 +38,7 @@ from robot_firmware.control.trajectories import (
     PolylineTrajectory,
     Trajectory,
 )
+from swarm_config.atomic_files import write_file_atomically
 from swarm_config.body import BodyParams
 from swarm_config.faults import PROCESS_ROLES, ScheduledFault, fault_subjects
 from swarm_config.metrics import MetricsConfig
@@ -49,6 +51,8 @@ from swarm_config.settings import (
     ScenarioError,
     SettingsError,
     describe_validation_error,
+    parse_yaml,
+    read_input_file,
     read_yaml,
 )
 
@@ -300,6 +304,47 @@ def load_scenario(path: Path) -> Scenario:
         resolved = (path.parent / fuzzy_file).resolve()
         scenario = scenario.model_copy(update={"fuzzy_parameter_file": resolved})
     return scenario
+
+
+RUN_SCENARIO_FILE = "scenario.yaml"
+"""A run's own copy of its scenario, in its run folder (`snapshot_scenario`)."""
+RUN_FUZZY_PARAMETER_FILE = "fuzzy_parameters.yaml"
+"""A run's own copy of the fuzzy parameter file its scenario names, beside its scenario copy."""
+
+
+def snapshot_scenario(source: Path, folder: Path) -> Path:
+    """Copy the scenario file `source`, and the fuzzy parameter file it names, into `folder` as
+    the run's own (`scenario.yaml`, `fuzzy_parameters.yaml`); returns the copy's path.
+
+    Every process of a run, and every restart of one, reads the copy: a scenario file edited or
+    removed while the run goes on changes nothing in it (before, a world or robot restarted
+    mid-run read the edited file and ran another scenario than the processes around it).  The
+    scenario is copied byte for byte, comments included; one that names a fuzzy parameter file
+    is written again with that key pointing at the copy.  ScenarioError when `source` (or its
+    fuzzy parameter file) cannot be read or is not a scenario; FileWriteError when a copy
+    cannot be written."""
+    try:
+        raw = read_input_file(source, "scenario file")
+        data = parse_yaml(raw.decode("utf-8"))
+    except SettingsError as exc:
+        raise ScenarioError(str(exc)) from None
+    except (yaml.YAMLError, ValueError, RecursionError) as exc:  # as load_scenario refuses it
+        raise ScenarioError(f"{source}: not a scenario file ({exc})") from None
+    scenario = parse_scenario(data, str(source))
+    copy = folder / RUN_SCENARIO_FILE
+    fuzzy_file = scenario.fuzzy_parameter_file
+    if fuzzy_file is None:
+        write_file_atomically(copy, raw)
+        return copy
+    assert isinstance(data, dict)  # parse_scenario took it
+    try:
+        fuzzy_raw = read_input_file(source.parent / fuzzy_file, "fuzzy parameter file")
+    except SettingsError as exc:
+        raise ScenarioError(f"fuzzy_parameter_file: {exc}") from None
+    write_file_atomically(folder / RUN_FUZZY_PARAMETER_FILE, fuzzy_raw)
+    data["fuzzy_parameter_file"] = RUN_FUZZY_PARAMETER_FILE
+    write_file_atomically(copy, yaml.safe_dump(data, sort_keys=False).encode("utf-8"))
+    return copy
 
 
 def load_fuzzy_parameters(path: Path) -> FuzzyParameters:

@@ -97,6 +97,7 @@ from swarm_config.credentials import (
     read_credential_set,
     write_credential_set,
 )
+from swarm_config.scenario import snapshot_scenario
 from swarm_config.settings import describe_validation_error
 from swarm_config.tls import (
     DEFAULT_TLS_HOSTS,
@@ -338,6 +339,8 @@ class Launcher:
             router_config = write_router_config(
                 self.credentials_dir, self.credentials, listen, self.tls
             )
+        # The run's own copy of its scenario: restarts read it, whatever becomes of the file.
+        scenario = str(snapshot_scenario(plan.scenario, plan.out_dir))
         cli = [sys.executable, "-m", "services.cli.main"]
         connect = ["--connect", plan.endpoint, "--swarm", plan.swarm]
         listen_flags = [flag for endpoint in listen for flag in ("--listen", endpoint)]
@@ -350,7 +353,7 @@ class Launcher:
             *cli,
             "world",
             "--scenario",
-            str(plan.scenario),
+            scenario,
             *connect,
             "--out",
             str(plan.out_dir),
@@ -366,14 +369,14 @@ class Launcher:
         if plan.runs_world:
             self.children["world"] = Child("world", world, logs / "world.log")
         for name in plan.started_robots:
-            argv = [*cli, "robot", "--name", name, "--scenario", str(plan.scenario), *connect]
+            argv = [*cli, "robot", "--name", name, "--scenario", scenario, *connect]
             self.children[name] = Child(name, argv, logs / f"{name}.log")
         if plan.dashboard and plan.runs_world:
             dashboard = [
                 *cli,
                 "dashboard",
                 "--scenario",
-                str(plan.scenario),
+                scenario,
                 *connect,
                 "--out",
                 str(plan.out_dir),

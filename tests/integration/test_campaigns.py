@@ -11,6 +11,7 @@ The measured figures are printed.
 from __future__ import annotations
 
 import json
+import subprocess
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -133,3 +134,34 @@ def test_leader_failover_campaign_replays_byte_for_byte(tmp_path: Path) -> None:
     (failover,) = summary["run_events"]["failovers"]
     assert failover["after_leader_down_s"] <= TAKEOVER_WITHIN_S
     assert summary["events"][0]["to"] == "robot2"  # the metrics' own record agrees
+
+
+def test_a_scenario_edited_during_a_run_changes_nothing_in_it(tmp_path: Path) -> None:
+    """A world restarted mid-run reads the run's own copy of its scenario (`scenario.yaml` in the
+    run folder), not the file the user typed, which they may have edited since: before, the
+    restarted world ran the edited scenario beside robots that ran the original."""
+    original = (CAMPAIGNS / "world-restart.yaml").read_text()
+    short = original.replace("duration_s: 45.0", "duration_s: 8.0").replace(
+        "at_s: 20.0", "at_s: 3.0"
+    )
+    short = short.split("\n  - at_s: 30.0")[0] + "\n"  # the world's restart only
+    assert "at_s: 3.0" in short and "{fault: partition" not in short
+    untouched, edited = tmp_path / "untouched.yaml", tmp_path / "edited.yaml"
+    untouched.write_text(short)
+    edited.write_text(short)
+    port_untouched, port_edited = free_ports(2)
+    lockstep = ["--lockstep", "--duration", "8"]
+    run_swarm(tmp_path / "a", *lockstep, "--scenario", str(untouched), port=port_untouched)
+    command = [str(ROOT / "swarm"), "up", *lockstep, "--scenario", str(edited)]
+    command += ["--out", str(tmp_path / "b"), "--no-dashboard", "--port", str(port_edited)]
+    with subprocess.Popen(command, stdout=subprocess.PIPE, text=True, cwd=ROOT) as swarm:
+        assert swarm.stdout is not None
+        assert swarm.stdout.readline().startswith("swarm lab:")  # every process started
+        # A bigger obstacle, further in: a restarted world reading it would run another run.
+        edited.write_text(short.replace("radius_m: 0.15", "radius_m: 0.45"))
+        swarm.stdout.read()
+        assert swarm.wait(timeout=300) == 0
+    first = (tmp_path / "a" / "summary.json").read_bytes()
+    assert json.loads(first)["world_resumes"] == [{"t_s": 3.0, "tick": 300}]
+    assert (tmp_path / "b" / "summary.json").read_bytes() == first
+    assert (tmp_path / "b" / "scenario.yaml").read_text() == short  # copied byte for byte

@@ -3,7 +3,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from swarm_config.scenario import ScenarioError, load_rule_base, load_scenario, parse_scenario
+from swarm_config.scenario import (
+    ScenarioError,
+    load_rule_base,
+    load_scenario,
+    parse_scenario,
+    snapshot_scenario,
+)
 from swarm_config.settings import INPUT_FILE_BYTES_MAX
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -107,3 +113,40 @@ def test_every_shipped_scenario_loads(path: Path) -> None:
     scenario = load_scenario(path)
     assert scenario.name == path.stem
     assert len(scenario.robot_names) >= 1
+
+
+def test_a_run_copies_its_scenario_byte_for_byte(tmp_path: Path) -> None:
+    copy = snapshot_scenario(PAPER, tmp_path / "run")
+    assert copy == tmp_path / "run" / "scenario.yaml"
+    assert copy.read_bytes() == PAPER.read_bytes()  # comments and all
+    assert load_scenario(copy) == load_scenario(PAPER)
+
+
+def test_a_run_copies_the_fuzzy_parameter_file_its_scenario_names(tmp_path: Path) -> None:
+    data = _paper_data()
+    data["fuzzy_parameter_file"] = "../fuzzy/mine.yaml"
+    (tmp_path / "fuzzy").mkdir()
+    fuzzy = tmp_path / "fuzzy" / "mine.yaml"
+    fuzzy.write_text("error_centres: [-1.0, 0.0, 1.0]\nrate_centres: [-1.0, -0.2, 0.2, 1.0]\n")
+    (tmp_path / "scenarios").mkdir()
+    source = tmp_path / "scenarios" / "s.yaml"
+    source.write_text(yaml.safe_dump(data))
+    copy = snapshot_scenario(source, tmp_path / "run")
+    fuzzy.write_text("error_centres: [1.0, 0.0]\nrate_centres: [-1, 1]\n")  # edited afterwards
+    source.unlink()
+    run = load_scenario(copy)
+    assert run.fuzzy_parameter_file == tmp_path / "run" / "fuzzy_parameters.yaml"
+    assert int(load_rule_base(run).rule_count) == 12  # the file as it was at the start
+    assert run.model_copy(update={"fuzzy_parameter_file": None}) == parse_scenario(
+        {**data, "fuzzy_parameter_file": None}
+    )
+
+
+def test_a_scenario_whose_fuzzy_parameter_file_is_missing_is_not_copied(tmp_path: Path) -> None:
+    data = _paper_data()
+    data["fuzzy_parameter_file"] = "nowhere.yaml"
+    source = tmp_path / "s.yaml"
+    source.write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError, match="fuzzy_parameter_file"):
+        snapshot_scenario(source, tmp_path / "run")
+    assert not (tmp_path / "run").exists()
