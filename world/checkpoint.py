@@ -168,6 +168,32 @@ class CheckpointStore:
             old.unlink(missing_ok=True)
         return path
 
+    def clear(self) -> int:
+        """Remove every checkpoint (refused ones and a killed writer's temporary files too):
+        the folder's next world starts afresh.  Returns how many checkpoints there were."""
+        if not self.directory.is_dir():
+            return 0
+        found = len(self.paths())
+        for pattern in ("world-*.ckpt", "world-*.ckpt.refused", ".world-*.ckpt.*"):
+            for path in self.directory.glob(pattern):
+                path.unlink(missing_ok=True)
+        return found
+
+    def clear_other_runs(self, run_id: str) -> int:
+        """Remove the checkpoints of any run but `run_id` (a checkpoint names its run: the
+        `run_id` of its world's credentials); returns how many.  One that cannot be read is
+        left for `load_latest` to refuse."""
+        removed = 0
+        for _tick, path in self.paths():
+            try:
+                state = decode_checkpoint(path.read_bytes())
+            except (CheckpointError, OSError):
+                continue
+            if state.get("run_id") != run_id:
+                path.unlink(missing_ok=True)
+                removed += 1
+        return removed
+
     def load_latest(
         self, restore: Callable[[dict[str, Any]], None] | None = None
     ) -> LoadedCheckpoint | None:

@@ -440,7 +440,12 @@ class WorldProcess:
         """Each restart of this run's world from a checkpoint: its time and tick."""
         self.epoch = new_epoch()
         """This start of the world, on every clock and sense message (DESIGN.md §7.1)."""
+        self.run_id = None if config.credentials is None else config.credentials.run_id
+        """The run this world belongs to (its credentials'; a new one for every `swarm up`, or
+        `docker compose up`): it resumes only from its own run's checkpoints."""
         if self.checkpoints is not None:
+            if self.run_id is not None and (gone := self.checkpoints.clear_other_runs(self.run_id)):
+                log.info("%d checkpoints of an earlier run removed: this is a new run", gone)
             self.resumed_from = self.checkpoints.load_latest(self.restore_checkpoint)
             if self.resumed_from is not None:
                 log.info(
@@ -460,6 +465,7 @@ class WorldProcess:
     def checkpoint_state(self) -> dict[str, object]:
         """The engine's state, the lockstep bookkeeping and the world's own counters."""
         return {
+            "run_id": self.run_id,
             "engine": self.engine.checkpoint_state(),
             "lockstep": self.barrier.export_state(),
             "epoch": self.epoch,

@@ -107,6 +107,7 @@ from swarm_config.tls import (
     read_tls_files,
     tls_dir,
 )
+from world.checkpoint import CHECKPOINT_DIR_NAME, CheckpointStore
 from world.write_failures import EXIT_SUMMARY_NOT_WRITTEN
 
 log = logging.getLogger("swarm.launcher")
@@ -341,6 +342,12 @@ class Launcher:
             )
         # The run's own copy of its scenario: restarts read it, whatever becomes of the file.
         scenario = str(snapshot_scenario(plan.scenario, plan.out_dir))
+        if plan.runs_world:
+            # A world resumes from the checkpoints in its folder: those of an earlier run there
+            # would make this run carry on from that one's end (its time, bodies, counters).
+            cleared = CheckpointStore(plan.out_dir / CHECKPOINT_DIR_NAME).clear()
+            if cleared:
+                log.info("a new run in %s: the earlier run's checkpoints removed", plan.out_dir)
         cli = [sys.executable, "-m", "services.cli.main"]
         connect = ["--connect", plan.endpoint, "--swarm", plan.swarm]
         listen_flags = [flag for endpoint in listen for flag in ("--listen", endpoint)]

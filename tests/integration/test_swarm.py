@@ -182,6 +182,22 @@ def _lockstep_run(out: Path, seconds: float) -> subprocess.CompletedProcess[str]
     )
 
 
+def test_a_second_run_in_the_same_folder_starts_afresh(tmp_path: Path) -> None:
+    """`swarm up` twice on one run folder (the default runs/swarm, the quick start typed twice):
+    the second run is a run of its own.  Before, its world resumed from the first run's last
+    checkpoint, at the first run's end, and the second run ended at once with nothing run."""
+    out = tmp_path / "run"
+    first = _lockstep_run(out, 2)
+    assert first.returncode == 0, first.stdout + first.stderr
+    summary = (out / "summary.json").read_bytes()
+    assert json.loads(summary)["world_resumes"] == []
+    second = _lockstep_run(out, 2)
+    assert second.returncode == 0, second.stdout + second.stderr
+    assert (out / "summary.json").read_bytes() == summary  # lockstep: the same run again
+    assert "the earlier run's checkpoints removed" in second.stderr
+    assert "resuming from checkpoint" not in (out / "logs" / "world.log").read_text()
+
+
 def test_a_world_that_cannot_write_its_files_runs_to_the_end_and_says_so(tmp_path: Path) -> None:
     """The run folder refuses every file the world writes (a folder where summary.json and
     events.jsonl go, a file where the checkpoints go), as a full disk would.  Before, the

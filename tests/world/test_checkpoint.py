@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from swarm_config.credentials import CredentialSet, generate_credential_set
 from swarm_config.scenario import load_scenario
 from world.checkpoint import (
     CheckpointError,
@@ -277,3 +278,43 @@ def test_a_process_killed_while_writing_leaves_a_valid_checkpoint(tmp_path: Path
         assert loaded is not None and loaded.state["tick"] == loaded.tick >= 3
         assert not list(directory.glob("*.refused"))
         assert not list(directory.glob(".world-*"))  # a killed write's temporary file
+
+
+def test_clearing_a_store_leaves_its_next_world_nothing_to_resume(tmp_path: Path) -> None:
+    store = CheckpointStore(tmp_path / "checkpoints")
+    assert store.clear() == 0  # no folder yet
+    store.save(50, {"tick": 50})
+    store.save(100, {"tick": 100})
+    (store.directory / "world-000000000010.ckpt.refused").write_bytes(b"x")
+    (store.directory / ".world-000000000150.ckpt.abc").write_bytes(b"half")
+    (store.directory / "notes.txt").write_text("the user's")
+    assert store.clear() == 2
+    assert store.load_latest() is None
+    assert sorted(p.name for p in store.directory.iterdir()) == ["notes.txt"]
+
+
+def test_a_world_resumes_only_from_its_own_runs_checkpoints(tmp_path: Path) -> None:
+    """A checkpoint names its run (the run id of the world's credentials, new for every `swarm
+    up` and `docker compose up`): a world of another run in the same folder starts afresh
+    and removes it, where it used to carry on from the earlier run's end."""
+    runs = generate_credential_set("lab", ("robot1", "robot2", "robot3"))
+
+    def world(credentials: CredentialSet) -> WorldProcess:
+        config = WorldConfig(
+            scenario=PAPER,
+            out_dir=tmp_path,
+            lockstep=True,
+            credentials=credentials.for_identity("world"),
+        )
+        return WorldProcess(config, load_scenario(PAPER))
+
+    first = world(runs)
+    _run(first.engine, first.tick, 50)
+    for _ in range(50):
+        first.barrier.advance()
+    assert first.checkpoints is not None
+    first.checkpoints.save(first.tick, first.checkpoint_state())
+    assert world(runs).tick == 50  # the same run: a restart resumes
+    other = world(runs.with_new_run_id())
+    assert other.resumed_from is None and other.tick == 0 and other.engine.t_ns == 0
+    assert first.checkpoints.paths() == []  # the earlier run's checkpoint is gone
