@@ -17,7 +17,9 @@ Files are written atomically and durably: a temporary file in the same directory
 rename over the final name, fsync of the directory.  A process killed mid-write leaves the
 older checkpoints as they were.  `CheckpointStore` keeps the newest `keep` (two) and, when
 asked for the latest, tries them newest first: a refused file is logged, renamed aside
-(`*.refused`) and the previous one is used.
+(`*.refused`) and the previous one is used.  A checkpoint names its run (`run_id`, from the
+world's credentials): a world removes those of any other run before it looks for one to resume
+(`clear_other_runs`), so a new run in a used folder starts afresh.
 """
 
 from __future__ import annotations

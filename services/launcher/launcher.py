@@ -43,6 +43,7 @@ such a run is written to `<out>/router.json5` (services/router/access.py: who ma
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import resource
@@ -431,10 +432,11 @@ class Launcher:
                 child.log_file = child.log_path.open("ab")
             child.process = self.factory(child.argv, child.log_file, self._env(name))
         except OSError as exc:
-            raise LaunchError(
-                f"cannot start {name}: {exc.strerror or exc} (the open-file limit is "
-                f"{resource.getrlimit(resource.RLIMIT_NOFILE)[0]}: `ulimit -n`)"
-            ) from None
+            limit = ""
+            if exc.errno in (errno.EMFILE, errno.ENFILE):
+                open_files_max = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+                limit = f" (the open-file limit is {open_files_max}: `ulimit -n`)"
+            raise LaunchError(f"cannot start {name}: {exc.strerror or exc}{limit}") from None
         child.killed = False
         child.stopped = False
         child.exit_reported = False
