@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from services.dashboard.viewer_options import browser_host_argument, server_memory_limit_argument
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
@@ -148,6 +149,7 @@ def _viewer_options(parser: argparse.ArgumentParser, with_defaults: bool = True)
     )
     parser.add_argument(
         "--host",
+        type=browser_host_argument,
         default=default("127.0.0.1"),
         help="this machine's name or address as the browser reaches it, used in the printed "
         "URL (default: 127.0.0.1); both ports must be reachable from the browser",
@@ -204,9 +206,11 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
     )
     dashboard.add_argument(
         "--memory-limit",
+        type=server_memory_limit_argument,
         metavar="SIZE",
-        help="data the gRPC server keeps for viewers that connect late, oldest dropped first "
-        "(default: 256MiB)",
+        help="data the gRPC server keeps for viewers that connect late, oldest dropped first: "
+        "a number and a unit (B, kB, MB, GB, KiB, MiB, GiB, ...) or a share of this machine's "
+        "memory, e.g. 25%% (default: 256MiB)",
     )
     _viewer_options(dashboard, with_defaults=False)
     dashboard.set_defaults(handler=run_dashboard)
@@ -224,8 +228,10 @@ def add_dashboard_parsers(subparsers: argparse._SubParsersAction[argparse.Argume
     replay.add_argument("recording", metavar="FILE.rrd", help="the recording to open")
     replay.add_argument(
         "--memory-limit",
+        type=server_memory_limit_argument,
         metavar="SIZE",
-        help="gRPC server memory (default: four times the file, at least 256MiB)",
+        help="gRPC server memory, e.g. 1GiB or 25%% (default: four times the file, at least "
+        "256MiB)",
     )
     _viewer_options(replay)
     replay.set_defaults(handler=run_replay)

@@ -60,6 +60,7 @@ from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.recording_file import trim_partial_message
 from services.dashboard.scene import SwarmScene, Update
+from services.dashboard.viewer_options import browser_host, server_memory_limit
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
     DASHBOARD,
@@ -76,7 +77,8 @@ APPLICATION_ID = "swarm-cps"
 RECORDING_FILE = "dashboard.rrd"
 EVENTS_FILE = "events.jsonl"
 """The world's record of the run's events, one `RunEvent` JSON per line, in the run directory."""
-LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "::1", "[::1]"})
+LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "[::1]"})
+"""Hosts as `browser_host` writes them that need no CORS origin."""
 
 
 class DashboardConfig(LayeredSettings):
@@ -118,6 +120,16 @@ class DashboardConfig(LayeredSettings):
     @classmethod
     def _key_chunk(cls, value: str) -> str:
         return check_name("swarm", value)
+
+    @field_validator("host")
+    @classmethod
+    def _browser_host(cls, value: str) -> str:
+        return browser_host(value)
+
+    @field_validator("server_memory_limit")
+    @classmethod
+    def _memory_size(cls, value: str) -> str:
+        return server_memory_limit(value)
 
     @model_validator(mode="after")
     def _credentials_are_the_dashboards(self) -> DashboardConfig:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from services.dashboard.cli import add_dashboard_parsers, run_dashboard, run_replay
-from services.dashboard.live import DashboardConfig
+from services.dashboard.live import DashboardConfig, viewer_url
 from swarm_config.credentials import DASHBOARD, generate_credential_set, write_credential_set
 from tests.dashboard.conftest import (
     FINISHED_RECORDING_CHUNKS,
@@ -107,6 +107,54 @@ def test_bad_settings_are_usage_errors_naming_the_field(
     assert args.handler(args) == 2
     err = capsys.readouterr().err
     assert err.startswith("swarm dashboard: invalid dashboard settings") and problem in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("command", ["dashboard", "replay"])
+@pytest.mark.parametrize(
+    ("option", "value", "problem"),
+    [
+        ("--host", "*", "is not a host name or address"),
+        ("--host", "http://lab:80", "without a scheme, port or path"),
+        ("--host", "0.0.0.0", "the any-address"),
+        ("--memory-limit", "-5", "is not a memory size"),
+        ("--memory-limit", "150%", "at most 100%"),
+    ],
+)
+def test_a_viewer_option_no_browser_or_server_can_use_is_a_usage_error_naming_the_flag(
+    command: str,
+    option: str,
+    value: str,
+    problem: str,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:
+    given = [str(tmp_path / "run.rrd")] if command == "replay" else []
+    with pytest.raises(SystemExit) as refused:
+        _parser().parse_args([command, *given, option, value])
+    assert refused.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}: {value!r}" in err and problem in err, err
+
+
+def test_an_ipv6_host_is_bracketed_in_the_printed_url(dashboard_credentials: str) -> None:
+    args = _parser().parse_args(["dashboard", "--host", "::1", "--memory-limit", "1.5GiB"])
+    assert (args.host, args.memory_limit) == ("[::1]", "1.5GiB")
+    assert viewer_url(args.host, 9090, 9876).startswith("http://[::1]:9090/?url=")
+
+
+def test_a_settings_file_with_a_bad_host_names_the_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], dashboard_credentials: str
+) -> None:
+    settings = tmp_path / "dashboard.yaml"
+    settings.write_text("host: lab host\nserver_memory_limit: lots\n")
+    argv = ["dashboard", "--scenario", str(PAPER), "--credentials", dashboard_credentials]
+    args = _parser().parse_args([*argv, "--config", str(settings)])
+    assert args.handler(args) == 2
+    err = capsys.readouterr().err
+    assert "invalid dashboard settings (2 problems)" in err, err
+    assert "  host: 'lab host' is not a host name or address" in err, err
+    assert "  server_memory_limit: 'lots' is not a memory size" in err, err
     assert "Traceback" not in err
 
 

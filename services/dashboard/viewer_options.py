@@ -1,0 +1,76 @@
+"""The viewer's host and the gRPC server's memory limit, checked before anything starts.
+
+`--host` only goes into the printed URL and the CORS origin, so a wrong one (a wildcard, a URL,
+a name with a space) used to give a URL no browser opens, with no error; an IPv6 address needs
+brackets in a URL.  `--memory-limit` went to Rerun unchecked, which refused it only after the
+dashboard had joined the swarm, in its own words.  Each check here raises `ValueError` with the
+reason (a settings validator reports it under the field's name); `*_argument` wraps it for
+argparse, where the flag is named.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import re
+
+HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+"""One label of a DNS name (RFC 1123): letters, digits and hyphens, no hyphen at either end."""
+
+MEMORY_SIZE = re.compile(r"(?P<number>\d+(?:\.\d+)?)\s*(?P<unit>B|kB|KiB|MB|MiB|GB|GiB|TB|TiB|%)")
+"""A memory size as Rerun reads it, e.g. 256MiB, 1.5GB, 50% (of this machine's memory)."""
+
+
+def browser_host(text: str) -> str:
+    """The host a browser reaches the viewer at, as it goes into a URL: a DNS name, an IPv4
+    address, or an IPv6 address (bracketed, with or without brackets as given)."""
+    host = text.strip()
+    bare = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    try:
+        address = ipaddress.ip_address(bare)
+    except ValueError:
+        address = None
+    if address is not None:
+        if address.is_unspecified:
+            raise ValueError(
+                f"{text!r} is the any-address, which a browser cannot open; give this "
+                "machine's name or address as the browser reaches it"
+            )
+        return f"[{address.compressed}]" if address.version == 6 else address.compressed
+    labels = host.removesuffix(".").split(".")
+    if len(host) > 253 or not all(HOST_LABEL.fullmatch(label) for label in labels):
+        raise ValueError(
+            f"{text!r} is not a host name or address (e.g. 127.0.0.1, robots-lab.local, "
+            "[::1]); give the host only, without a scheme, port or path"
+        )
+    return host
+
+
+def server_memory_limit(text: str) -> str:
+    """A memory size Rerun's gRPC server takes (`MEMORY_SIZE`; a percentage at most 100),
+    returned as given."""
+    match = MEMORY_SIZE.fullmatch(text.strip())
+    if match is None:
+        raise ValueError(
+            f"{text!r} is not a memory size: a number and a unit, e.g. 256MiB, 2GB or 25% "
+            "(units B, kB, MB, GB, TB, KiB, MiB, GiB, TiB)"
+        )
+    if match["unit"] == "%" and float(match["number"]) > 100.0:
+        raise ValueError(f"{text!r}: a share of this machine's memory is at most 100%")
+    return text
+
+
+def browser_host_argument(text: str) -> str:
+    """`browser_host` as an argparse type."""
+    try:
+        return browser_host(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def server_memory_limit_argument(text: str) -> str:
+    """`server_memory_limit` as an argparse type."""
+    try:
+        return server_memory_limit(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
