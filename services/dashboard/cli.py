@@ -108,8 +108,9 @@ def run_dashboard(args: argparse.Namespace) -> int:
 
 def run_replay(args: argparse.Namespace) -> int:
     """`swarm replay FILE.rrd`: serve a recorded run to the web viewer."""
-    from services.dashboard.live import check_port_free, viewer_url
+    from services.dashboard.live import viewer_url
     from services.dashboard.replay import replay_command, serve_recording, server_memory_limit_for
+    from services.listen_ports import check_port_free
 
     recording = Path(args.recording)
     if not recording.is_file():

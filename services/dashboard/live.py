@@ -26,7 +26,6 @@ import json
 import logging
 import math
 import queue
-import socket
 import threading
 import time
 import uuid
@@ -61,6 +60,7 @@ from services.dashboard.blueprint import default_blueprint
 from services.dashboard.recording_file import trim_partial_message
 from services.dashboard.scene import SwarmScene, Update
 from services.dashboard.viewer_options import browser_host, server_memory_limit
+from services.listen_ports import check_port_free
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
     DASHBOARD,
@@ -145,17 +145,6 @@ def grpc_url(host: str, grpc_port: int) -> str:
 def viewer_url(host: str, web_port: int, grpc_port: int) -> str:
     """The page to open: the web viewer with its `?url=` data source filled in."""
     return f"http://{host}:{web_port}/?url={quote(grpc_url(host, grpc_port), safe='')}"
-
-
-def check_port_free(port: int) -> None:
-    """OSError naming the port if something already listens on it (Rerun's servers would only
-    log the failure and run without it)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            probe.bind(("0.0.0.0", port))
-        except OSError as exc:
-            raise OSError(exc.errno, f"port {port} is in use ({exc.strerror})") from None
 
 
 def keep_previous_recording(path: Path) -> Path | None:

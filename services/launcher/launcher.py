@@ -80,6 +80,7 @@ from robot_firmware.net.messages import (
 from robot_firmware.net.session import open_client
 from services.launcher.orphans import LAUNCHER_PID_ENV
 from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
+from services.listen_ports import endpoint_listen_problem
 from services.output_folder import prepare_output_folder
 from services.router.access import (
     ROUTER_CONFIG_FILE,
@@ -341,6 +342,7 @@ class Launcher:
             router_config = write_router_config(
                 self.credentials_dir, self.credentials, listen, self.tls
             )
+        self.router_listen_endpoints = tuple(listen)
         # The run's own copy of its scenario: restarts read it, whatever becomes of the file.
         scenario = str(snapshot_scenario(plan.scenario, plan.out_dir))
         if plan.runs_world:
@@ -573,8 +575,23 @@ class Launcher:
     def up(self, on_ready: Callable[[], None] | None = None) -> int:
         """Start everything and supervise until the world ends or a stop is asked.
 
-        Raises LaunchError, having stopped what it started, when the router exits before it
-        lets the launcher in, or runs `ROUTER_LOGIN_TIMEOUT_S` without letting it in."""
+        Raises LaunchError, having stopped what it started, when the router could not listen
+        (checked before it starts), exits before it lets the launcher in, or runs
+        `ROUTER_LOGIN_TIMEOUT_S` without letting it in."""
+        for endpoint in self.router_listen_endpoints:
+            problem = endpoint_listen_problem(endpoint)
+            if problem is not None:
+                self.shutdown()
+                flag = "--port N" if endpoint == self.plan.endpoint else "--listen ENDPOINT"
+                hint = (
+                    f" (another program or swarm listens there; `swarm up {flag}` picks another)"
+                    if problem.errno == errno.EADDRINUSE
+                    else ""
+                )
+                raise LaunchError(
+                    f"cannot listen on {endpoint}: {problem.strerror or problem}, so nothing was "
+                    f"started{hint}"
+                )
         self.start("router")
         try:
             opened = self._launcher_session()

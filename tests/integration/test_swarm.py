@@ -18,6 +18,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -40,6 +41,7 @@ from tests.integration.conftest import (
     run_swarm,
     swarm_cli,
 )
+from tests.support.waiting import wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -318,11 +320,45 @@ def test_swarm_up_on_a_taken_port_says_so_and_starts_nothing_else(tmp_path: Path
         out = tmp_path / "up"
         refused = swarm_cli("up", "--no-dashboard", "--out", str(out), "--port", str(port))
     assert refused.returncode == 1, refused.stderr
-    assert f"is tcp/127.0.0.1:{port} taken by another program or swarm?" in refused.stderr
-    assert "Traceback" not in refused.stderr
-    router_log = (out / "logs" / "router.log").read_text()
-    assert "cannot start the router" in router_log and "Traceback" not in router_log
-    assert sorted(p.name for p in (out / "logs").iterdir()) == ["router.log"]
+    assert refused.stderr == (
+        f"swarm up: cannot listen on tcp/127.0.0.1:{port}: Address already in use, so nothing "
+        "was started (another program or swarm listens there; `swarm up --port N` picks "
+        "another)\n"
+    )
+    assert list((out / "logs").iterdir()) == []
+
+
+def _listens(port: int) -> bool:
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) == 0
+
+
+def test_swarm_up_on_another_swarms_port_prints_one_line_and_no_zenoh_log(tmp_path: Path) -> None:
+    # Before, the launcher's session tried the other swarm's router before its own router had
+    # failed to listen, and Zenoh logged that router's refusals on the user's terminal.
+    other = tmp_path / "other"
+    made = swarm_cli("credentials", str(other), "--scenario", str(PAPER))
+    assert made.returncode == 0, made.stderr
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = subprocess.Popen(
+        [sys.executable, "-m", "services.cli.main", "router", "--listen", endpoint]
+        + ["--config", str(other / "router.json5")],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        wait_for(lambda: _listens(port) or router.poll() is not None, timeout_s=60)
+        assert router.poll() is None, "the other swarm's router did not start"
+        out = str(tmp_path / "up")
+        refused = swarm_cli("up", "--no-dashboard", "--out", out, "--port", str(port))
+    finally:
+        router.terminate()
+        router.wait(timeout=30)
+    assert refused.returncode == 1, refused.stderr
+    assert refused.stderr.startswith(f"swarm up: cannot listen on {endpoint}: Address already in")
+    assert len(refused.stderr.splitlines()) == 1, refused.stderr
 
 
 def test_real_time_swarm_reports_loop_timing_consistent_with_its_length(tmp_path: Path) -> None:
