@@ -232,6 +232,11 @@ class Scenario(_Strict):
                 f"rate ({control_rate_hz:g} Hz): a robot broadcasts at most once per control period"
             )
         ticks = self.duration_s / self.controller.control_period_s
+        if ticks < 1.0:
+            raise ValueError(
+                f"duration_s ({self.duration_s:g} s) is shorter than one control period "
+                f"({self.controller.control_period_s:g} s): nothing would run"
+            )
         if ticks > 10_000_000:
             raise ValueError("duration_s / control_period_s is over ten million ticks")
         known = set(names) | set(PROCESS_ROLES)

@@ -288,6 +288,17 @@ class WorldConfig(LayeredSettings):
             check_identity(self.credentials, WORLD, self.swarm)
         return self
 
+    def scenario_problem(self, scenario: Scenario) -> str | None:
+        """What these settings cannot do with `scenario`, for a usage error, or None: a run
+        shorter than one control period would end before its first tick."""
+        period_s = scenario.controller_params().control_period_s
+        if self.duration_s is not None and self.duration_s < period_s:
+            return (
+                f"duration_s (--duration): {self.duration_s:g} s is shorter than one control "
+                f"period of scenario {scenario.name!r} ({period_s:g} s): nothing would run"
+            )
+        return None
+
 
 def new_epoch(avoid: object = None) -> int:
     """A random non-zero u32 naming one start of the world, never `avoid` (the epoch of the

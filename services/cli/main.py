@@ -108,7 +108,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
             print(
                 f"  {label:<20} leader {_cm(entry['leader_tracking_rms_m'])}, formation "
                 f"{', '.join(_cm(v) for v in entry['formation_rms_m'].values())}, "
-                f"fitness (16) {entry['fitness_snr_db']} dB"
+                f"fitness (16) {_db(entry['fitness_snr_db'])}"
             )
     print(f"wrote {outputs.summary_path}")
     for path in outputs.figure_paths:
@@ -146,7 +146,11 @@ def _cmd_world(args: argparse.Namespace) -> int:
     config = _settings(WorldConfig, given, args.config)
     if config.credentials is None:
         raise UsageError(f"no credentials: {HOW_TO_GET_CREDENTIALS}")
-    world = WorldProcess(config, load_scenario(config.scenario))
+    scenario = load_scenario(config.scenario)
+    problem = config.scenario_problem(scenario)
+    if problem is not None:
+        raise UsageError(problem)
+    world = WorldProcess(config, scenario)
     _install_stop(world.stop)
     return world.run()
 
@@ -351,6 +355,9 @@ def _cmd_up(args: argparse.Namespace) -> int:
         {k: v for k, v in os.environ.items() if k != CREDENTIALS_FILE_ENV},
     )
     scenario = load_scenario(world.scenario)
+    problem = world.scenario_problem(scenario)
+    if problem is not None:
+        raise UsageError(problem)
     only = _only_robots(args.only, scenario.name, scenario.robot_names)
     _check_across_hosts(args)
     out_dir = Path(args.out)  # made by the launcher once the plan passes its checks
@@ -818,6 +825,12 @@ def _cm(value: object) -> str:
     if value is None:
         return "n/a"
     return f"{100.0 * float(value):.2f} cm"  # type: ignore[arg-type]
+
+
+def _db(value: object) -> str:
+    if value is None:
+        return "n/a"
+    return f"{float(value):.6f} dB"  # type: ignore[arg-type]
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

@@ -8,6 +8,7 @@ import pytest
 import zenoh
 
 from services.cli.main import PARAMS_FILE_BYTES_MAX, main
+from swarm_config.credentials import WORLD, generate_credential_set, write_credential_set
 
 ROOT = Path(__file__).resolve().parents[2]
 NOBODY = "tcp/127.0.0.1:9"
@@ -130,3 +131,21 @@ def test_a_router_config_that_cannot_be_read_stops_the_router_in_one_line(tmp_pa
         assert result.returncode == 2, result.stderr
         assert "Traceback" not in result.stderr
         assert f"cannot use the router config {config}" in result.stderr
+
+
+@pytest.mark.parametrize("command", ["up", "world"])
+def test_a_run_shorter_than_one_control_period_is_refused_before_anything_starts(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Before, the world ended at its first tick boundary with nothing run.
+    out = tmp_path / "run"
+    argv = [command, "--duration", "0.004", "--out", str(out)]
+    if command == "world":
+        credentials = generate_credential_set("lab", ("robot1", "robot2", "robot3"))
+        files = write_credential_set(tmp_path / "credentials", credentials)
+        argv += ["--credentials", str(files[WORLD])]
+    assert _refused(argv, capsys) == (
+        f"swarm {command}: duration_s (--duration): 0.004 s is shorter than one control period "
+        "of scenario 'paper' (0.01 s): nothing would run"
+    )
+    assert not out.exists()

@@ -130,6 +130,7 @@ def test_bad_scenario_exits_2_naming_the_field_without_traceback(tmp_path: Path)
         (("--duration", "inf"), "duration_s: Input should be a finite number"),
         (("--duration", "nan"), "duration_s: Input should be a finite number"),
         (("--seed", "-1", "--duration", "1"), "seed: Input should be greater than or equal to 0"),
+        (("--duration", "0.001"), "duration_s (0.001 s) is shorter than one control period"),
     ],
 )
 def test_bad_command_line_values_exit_2_naming_the_field(

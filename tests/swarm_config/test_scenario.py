@@ -45,6 +45,7 @@ def test_paper_scenario_is_the_papers_experiment() -> None:
         (("robot_body", "wheel_radius"), 0.05, "robot_body.wheel_radius"),
         (("radio", "broadcast_rate_hz"), 1e300, "radio.broadcast_rate_hz (1e+300) is above"),
         (("radio", "broadcast_rate_hz"), 100.5, "above the control rate (100 Hz)"),
+        (("duration_s",), 0.005, "duration_s (0.005 s) is shorter than one control period"),
     ],
 )
 def test_bad_field_is_named_in_the_error(path: tuple, value: object, expected: str) -> None:
