@@ -108,8 +108,11 @@ class SettingsError(ValueError):
     """Settings that cannot be used; the message names the field (and its variable)."""
 
 
-DEFAULT_SCENARIO_PATH = Path("configs/scenarios/paper.yaml")
-"""The paper's experiment, relative to the repository root: what runs when no scenario is given."""
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+"""The folder of the project's sources and its `configs/` (every install is editable)."""
+DEFAULT_SCENARIO_PATH = PROJECT_ROOT / "configs" / "scenarios" / "paper.yaml"
+"""The paper's experiment, what runs when no scenario is given: the project's own file, from
+whatever folder a command runs in (a scenario a user names is found from that folder)."""
 
 
 class ScenarioError(Exception):
