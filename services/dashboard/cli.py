@@ -13,11 +13,16 @@ import signal
 import sys
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.dashboard.viewer_options import browser_host_argument, server_memory_limit_argument
+from services.launcher.run_lock import (
+    DASHBOARD_LOCK_FILE_NAME,
+    RunDirectoryBusyError,
+    RunDirectoryLock,
+)
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
@@ -66,44 +71,55 @@ def run_dashboard(args: argparse.Namespace) -> int:
         "out_dir": args.out,
         "server_memory_limit": args.memory_limit,
     }
-    try:
-        # The scenario first: a missing one is the mistake to report, whatever else is wrong.
-        scenario_path = args.scenario or os.environ.get("SWARM_SCENARIO") or DEFAULT_SCENARIO
-        scenario = load_scenario(Path(scenario_path))
-        config = DashboardConfig.from_sources(
-            given, config_file=Path(args.config) if args.config else None
-        )
-        if config.out_dir is not None:
-            prepare_output_folder(config.out_dir, "--out")
-        service = DashboardService(config, scenario)
-    except (ScenarioError, SettingsError, OutputFolderError) as exc:
-        return _usage_error("dashboard", str(exc))
-    except ValueError as exc:
-        return _usage_error("dashboard", f"invalid settings: {exc}")
-
-    def ready() -> None:
-        print(
-            f"dashboard for swarm {config.swarm} ({scenario.name}) at {', '.join(config.connect)}"
-        )
-        print(f"open {service.url}")
-        if service.recording_path is not None:
-            print(f"recording to {service.recording_path}")
-        if service.kept_recording is not None:
-            print(f"previous recording kept as {service.kept_recording}")
-        if service.kept_recording_cut_bytes:
-            print(
-                f"  its last chunk was half written when the dashboard stopped: "
-                f"{service.kept_recording_cut_bytes} bytes cut off its end"
+    with ExitStack() as held:  # the recording folder's lock, until this function returns
+        try:
+            # The scenario first: a missing one is the mistake to report, whatever else is
+            # wrong.
+            scenario_path = args.scenario or os.environ.get("SWARM_SCENARIO") or DEFAULT_SCENARIO
+            scenario = load_scenario(Path(scenario_path))
+            config = DashboardConfig.from_sources(
+                given, config_file=Path(args.config) if args.config else None
             )
-        sys.stdout.flush()
+            if config.out_dir is not None:
+                prepare_output_folder(config.out_dir, "--out")
+                lock = RunDirectoryLock.acquire(
+                    config.out_dir,
+                    "recording folder",
+                    "--out DIR",
+                    command="swarm dashboard",
+                    lock_file_name=DASHBOARD_LOCK_FILE_NAME,
+                )
+                held.callback(lock.release)
+            service = DashboardService(config, scenario)
+        except (ScenarioError, SettingsError, OutputFolderError, RunDirectoryBusyError) as exc:
+            return _usage_error("dashboard", str(exc))
+        except ValueError as exc:
+            return _usage_error("dashboard", f"invalid settings: {exc}")
 
-    try:
-        with _stop_on_signals(service.stop):
-            return service.run(on_ready=ready)
-    except (OSError, RuntimeError) as exc:
-        return _usage_error(
-            "dashboard", f"cannot serve the viewer: {getattr(exc, 'strerror', None) or exc}"
-        )
+        def ready() -> None:
+            print(
+                f"dashboard for swarm {config.swarm} ({scenario.name}) at "
+                f"{', '.join(config.connect)}"
+            )
+            print(f"open {service.url}")
+            if service.recording_path is not None:
+                print(f"recording to {service.recording_path}")
+            if service.kept_recording is not None:
+                print(f"previous recording kept as {service.kept_recording}")
+            if service.kept_recording_cut_bytes:
+                print(
+                    f"  its last chunk was half written when the dashboard stopped: "
+                    f"{service.kept_recording_cut_bytes} bytes cut off its end"
+                )
+            sys.stdout.flush()
+
+        try:
+            with _stop_on_signals(service.stop):
+                return service.run(on_ready=ready)
+        except (OSError, RuntimeError) as exc:
+            return _usage_error(
+                "dashboard", f"cannot serve the viewer: {getattr(exc, 'strerror', None) or exc}"
+            )
 
 
 def run_replay(args: argparse.Namespace) -> int:

@@ -8,6 +8,12 @@ router log.  Now the launcher takes `<dir>/.swarm-up.lock` with `flock` before i
 anything and keeps it until it ends; a second launcher finds it taken and stops with a message
 naming the first one's process id.  The kernel drops the lock when its holder's process ends,
 however it ends, so a killed launcher leaves nothing stale behind; the file itself stays.
+
+`swarm dashboard --out DIR` takes its own lock in the same way (`DASHBOARD_LOCK_FILE_NAME`, so
+the dashboard that `swarm up` starts in its run directory is not refused by its launcher's
+lock): a second dashboard recording into the same folder used to move the live recording
+aside as if it were an old one, cut what looked like its half-written end while it was being
+written, and leave the run's recording under another name.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from pathlib import Path
 from swarm_config.atomic_files import FileWriteError
 
 LOCK_FILE_NAME = ".swarm-up.lock"
+DASHBOARD_LOCK_FILE_NAME = ".swarm-dashboard.lock"
 
 
 class RunDirectoryBusyError(ValueError):
@@ -32,12 +39,20 @@ class RunDirectoryLock:
         self._descriptor: int | None = descriptor
 
     @classmethod
-    def acquire(cls, directory: Path, what: str, instead: str) -> RunDirectoryLock:
+    def acquire(
+        cls,
+        directory: Path,
+        what: str,
+        instead: str,
+        command: str = "swarm up",
+        lock_file_name: str = LOCK_FILE_NAME,
+    ) -> RunDirectoryLock:
         """Lock `directory` (made if missing) for this process; RunDirectoryBusyError when another
         process holds it.  `what` names the directory's role in the message (e.g. "run
-        directory"), `instead` how to give this run another one (e.g. "--out DIR")."""
+        directory"), `instead` how to give this run another one (e.g. "--out DIR"); `command`
+        is what holds such locks, each kind in its own `lock_file_name`."""
         directory.mkdir(parents=True, exist_ok=True)
-        path = directory / LOCK_FILE_NAME
+        path = directory / lock_file_name
         try:
             descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
         except OSError as exc:  # a folder in its place, a read-only file system
@@ -48,7 +63,7 @@ class RunDirectoryLock:
             holder = os.read(descriptor, 32).decode("ascii", "replace").strip() or "unknown"
             os.close(descriptor)
             raise RunDirectoryBusyError(
-                f"{directory} is the {what} of another `swarm up` that is still running "
+                f"{directory} is the {what} of another `{command}` that is still running "
                 f"(pid {holder}): stop that one first (Ctrl-C in its terminal), or give this "
                 f"one another ({instead})"
             ) from None

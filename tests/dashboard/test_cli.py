@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import signal
 import socket
+import subprocess
 import warnings
 from pathlib import Path
 
@@ -204,3 +205,29 @@ def test_a_restarted_dashboard_cuts_a_half_written_chunk_off_the_kept_file(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # no footer: read as a legacy file
         assert read_recording(kept)["/map/robots/robot1"].rows == FINISHED_RECORDING_CHUNKS - 1
+
+
+def test_a_second_dashboard_recording_into_the_same_folder_is_refused(
+    tmp_path: Path, children: list[Child], dashboard_credentials: str
+) -> None:
+    # Before, the second one moved the first one's live recording aside as an old one (and
+    # could cut its end while it was being written).
+    first = _start_without_router(tmp_path, children, dashboard_credentials)
+    assert (tmp_path / "dashboard.rrd").exists()
+    argv = ["-m", "services.dashboard", "dashboard", "--scenario", str(PAPER)]
+    argv += ["--credentials", dashboard_credentials, "--out", str(tmp_path)]
+    argv += ["--connect", f"tcp/127.0.0.1:{free_port()}"]
+    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+    second = start("second", argv, tmp_path / "logs")
+    children.append(second)
+    try:
+        assert second.process.wait(timeout=60) == 2, second.output()
+    except subprocess.TimeoutExpired:
+        raise AssertionError(f"the second dashboard runs:\n{second.output()}") from None
+    assert (
+        f"swarm dashboard: {tmp_path} is the recording folder of another `swarm dashboard` that "
+        f"is still running (pid {first.process.pid})"
+    ) in second.output()
+    assert sorted(p.name for p in tmp_path.glob("*.rrd")) == ["dashboard.rrd"]
+    assert first.stop(signal.SIGTERM, timeout_s=15) == 0
+    assert "previous recording kept" not in first.output()

@@ -11,7 +11,12 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.run_lock import LOCK_FILE_NAME, RunDirectoryBusyError, RunDirectoryLock
+from services.launcher.run_lock import (
+    DASHBOARD_LOCK_FILE_NAME,
+    LOCK_FILE_NAME,
+    RunDirectoryBusyError,
+    RunDirectoryLock,
+)
 from tests.integration.conftest import ROOT
 
 HOLD = """
@@ -67,6 +72,20 @@ def test_a_released_lock_can_be_taken_again_and_makes_a_missing_directory(
         RunDirectoryLock.acquire(directory, "run directory", "--out DIR")
     first.release()
     RunDirectoryLock.acquire(directory, "run directory", "--out DIR").release()
+
+
+def test_a_dashboards_lock_and_a_launchers_lock_of_one_folder_are_apart(tmp_path: Path) -> None:
+    # `swarm up` holds its run directory and starts a dashboard that records into it.
+    launcher = RunDirectoryLock.acquire(tmp_path, "run directory", "--out DIR")
+    dashboard = RunDirectoryLock.acquire(
+        tmp_path, "recording folder", "--out DIR", "swarm dashboard", DASHBOARD_LOCK_FILE_NAME
+    )
+    with pytest.raises(RunDirectoryBusyError, match="of another `swarm dashboard` that is"):
+        RunDirectoryLock.acquire(
+            tmp_path, "recording folder", "--out DIR", "swarm dashboard", DASHBOARD_LOCK_FILE_NAME
+        )
+    dashboard.release()
+    launcher.release()
 
 
 def _credential_files(directory: Path) -> dict[str, bytes]:
