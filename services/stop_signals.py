@@ -33,6 +33,8 @@ from types import FrameType
 STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 """SIGHUP too: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish."""
 STOP_POLL_S = 0.2
+EXIT_INTERRUPTED = 130
+"""A command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
 """How often a main thread waiting for a stop runs the signal handlers other threads noted."""
 
 
@@ -66,3 +68,21 @@ def wait_for_stop(stop: threading.Event, poll_s: float = STOP_POLL_S) -> None:
     signals that landed on another thread (module docstring)."""
     while not stop.wait(poll_s):
         pass
+
+
+def _interrupt_once(_signum: int, _frame: FrameType | None) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+def interrupt_once() -> None:
+    """Ctrl-C raises KeyboardInterrupt once in a command's process; later ones are ignored.
+
+    A command that handles its Ctrl-C then only winds down: `swarm tune` says where its
+    checkpoint is, the batch simulator's worker threads finish the step they are in (about a
+    second at most) before the interpreter exits.  A second Ctrl-C used to interrupt that,
+    with a traceback from Python's exit or with the tuner's message lost.  SIGTERM and SIGKILL
+    still end the process; a SIGINT the process was started ignoring stays ignored; a command
+    that installs its own stop handlers (`stop_on_signals`) replaces this one."""
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _interrupt_once)

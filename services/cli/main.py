@@ -24,7 +24,7 @@ from services.launcher.orphans import end_with_the_launcher
 from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.real_time_hold import real_time_shortfalls
-from services.stop_signals import stop_on_signals
+from services.stop_signals import EXIT_INTERRUPTED, interrupt_once, stop_on_signals
 from swarm_config.atomic_files import FileWriteError
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
@@ -1185,6 +1185,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"swarm: {exc}", file=sys.stderr)
         return EXIT_USAGE
     end_with_the_launcher()
+    if argv is None:  # this process's own command: a caller's in-process call keeps its SIGINT
+        interrupt_once()
     given = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(given[0] if given else None)
     args = parser.parse_args(given)
@@ -1201,7 +1203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_WRITE_FAILED
     except KeyboardInterrupt:
         print(f"swarm {args.command}: interrupted", file=sys.stderr)
-        return 130
+        code = EXIT_INTERRUPTED
     except BrokenPipeError:
         # The reader of our output went away (e.g. `| head`); nothing left to say.
         sys.stderr.close()

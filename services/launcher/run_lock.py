@@ -13,7 +13,8 @@ however it ends, so a killed launcher leaves nothing stale behind; the file itse
 the dashboard that `swarm up` starts in its run directory is not refused by its launcher's
 lock): a second dashboard recording into the same folder used to move the live recording
 aside as if it were an old one, cut what looked like its half-written end while it was being
-written, and leave the run's recording under another name.
+written, and leave the run's recording under another name.  `swarm tune --out DIR` too
+(`TUNE_LOCK_FILE_NAME`): two tuners in one folder wrote each other's checkpoints and results.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from swarm_config.atomic_files import FileWriteError
 
 LOCK_FILE_NAME = ".swarm-up.lock"
 DASHBOARD_LOCK_FILE_NAME = ".swarm-dashboard.lock"
+TUNE_LOCK_FILE_NAME = ".swarm-tune.lock"
 
 
 class RunDirectoryBusyError(ValueError):

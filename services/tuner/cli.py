@@ -47,7 +47,13 @@ from typing import TextIO
 
 import numpy as np
 
+from services.launcher.run_lock import (
+    TUNE_LOCK_FILE_NAME,
+    RunDirectoryBusyError,
+    RunDirectoryLock,
+)
 from services.output_folder import OutputFolderError, prepare_output_folder
+from services.stop_signals import EXIT_INTERRUPTED
 from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
 from services.tuner.evaluation import ProgressCallback, snr_fitness_from_cost
 from services.tuner.fitness import evaluate_fitness
@@ -78,7 +84,6 @@ DEFAULT_EVALUATION_DURATION_S = 30.0
 """Simulated seconds per evaluation (at most the scenario's duration); on the paper scenario eq. 16
 then averages over 0-30 s: the approach from the starting poses, more than one lap of the circle
 and one pass of the obstacle."""
-EXIT_INTERRUPTED = 130
 EXIT_CLUSTER_LOST = 1
 EXIT_WRITE_FAILED = 1
 
@@ -229,7 +234,12 @@ def run_tune(args: argparse.Namespace) -> int:
         cluster = None if args.ray is None else connect_cluster(str(args.ray))
         try:
             prepare_output_folder(out_dir, "--out")  # last: a refused run leaves no empty folder
-        except OutputFolderError:
+            # One tuner writes a folder's checkpoints and results: held until it returns (each
+            # algorithm checks its run folder again under it).
+            lock = RunDirectoryLock.acquire(
+                out_dir, "output folder", "--out DIR", "swarm tune", TUNE_LOCK_FILE_NAME
+            )
+        except (OutputFolderError, RunDirectoryBusyError):
             if cluster is not None:
                 cluster.close()
             raise
@@ -250,6 +260,7 @@ def run_tune(args: argparse.Namespace) -> int:
             cpu_start,
         )
     finally:
+        lock.release()
         if cluster is not None:
             cluster.close()
 

@@ -2,6 +2,10 @@
 
 import argparse
 import json
+import signal
+import subprocess
+import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -10,7 +14,7 @@ import numpy as np
 import pytest
 
 from services.tuner import fuzzy_tuning
-from services.tuner.cli import add_tune_parser, parse_algorithms, run_tune
+from services.tuner.cli import TuneArgumentError, add_tune_parser, parse_algorithms, run_tune
 from services.tuner.evaluation import FloatArray, Objective
 from services.tuner.fuzzy_tuning import read_convergence_csv, read_settings
 from swarm_config.scenario import (
@@ -211,3 +215,60 @@ def test_a_run_json_that_is_not_settings_reads_as_none(tmp_path: Path, stored: s
     path = tmp_path / "run.json"
     path.write_text(stored, encoding="utf-8")
     assert read_settings(path) is None  # resume then refuses it as unreadable, in one line
+
+
+def _swarm_tune_child(out: Path, *extra: str) -> subprocess.Popen[str]:
+    """`swarm tune` as a user starts it, with Ctrl-C acting as in a terminal."""
+    argv = [sys.executable, "-m", "services.cli.main", "tune", "--scenario", str(PAPER)]
+    return subprocess.Popen(
+        [*argv, "--out", str(out), *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=ROOT,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
+def test_ctrl_c_pressed_again_while_tune_winds_down_gives_no_traceback(tmp_path: Path) -> None:
+    # Before, a second Ctrl-C while the batch simulator's threads finished their step
+    # interrupted the interpreter's exit with a traceback (and status -2 instead of 130).
+    child = _swarm_tune_child(tmp_path, "--budget", "100000", "--duration", "30")
+    assert child.stdout is not None
+    output: list[str] = []
+    for line in child.stdout:  # the first generation: the batch simulator's threads are busy
+        output.append(line)
+        if line.startswith("tune ofa gen"):
+            break
+    child.send_signal(signal.SIGINT)
+    deadline_s = time.monotonic() + 120.0  # generous: a loaded machine winds down slowly
+    while child.poll() is None and time.monotonic() < deadline_s:
+        child.send_signal(signal.SIGINT)  # as a user pressing Ctrl-C again and again
+        time.sleep(0.01)
+    output.append(child.communicate(timeout=30)[0])
+    text = "".join(output)
+    assert child.returncode == 130, text
+    assert "interrupted: ofa is checkpointed in" in text
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
+
+
+def test_a_second_tune_in_the_folder_of_a_running_one_is_refused(tmp_path: Path) -> None:
+    # Before, both ran and wrote each other's checkpoints and results.
+    first = _swarm_tune_child(tmp_path, "--budget", "100000", "--duration", "30")
+    assert first.stdout is not None
+    try:
+        for line in first.stdout:
+            if line.startswith("tune ofa gen"):
+                break
+        args = tune_args("--scenario", str(PAPER), "--out", str(tmp_path), "--algo", "ga", *TINY)
+        with pytest.raises(TuneArgumentError) as refused:
+            run_tune(args)
+        assert (
+            f"{tmp_path} is the output folder of another `swarm tune` that is still running "
+            f"(pid {first.pid})"
+        ) in str(refused.value)
+        assert not (tmp_path / "ga").exists()
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=120)
+    assert first.returncode == 130
