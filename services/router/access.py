@@ -5,6 +5,9 @@ configs/zenoh/router.json5, plus):
 
 * `transport/auth/usrpwd`: every client must log in with a user and password listed in the
   run's `router-users.txt` (swarm_config/credentials.py); no login, no session;
+* `transport/unicast`: room for `ROUTER_ACCEPT_PENDING` logins at once, each given at most
+  `ROUTER_ACCEPT_TIMEOUT_MS` (idle connections held open to the port no longer keep every
+  new login out);
 * `access_control` with `default_permission: "deny"`: a message passes the router only when
   an allow rule of the sending identity (`ingress`) *and*, where it is delivered to another
   client, of the receiving identity (`egress`) covers its key. A denied message is dropped
@@ -117,6 +120,15 @@ ROUTER_LINK_LEASE_MS = 1000
 """The lease a router with links to other hosts announces: a silent link is closed after it."""
 ROUTER_LINK_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
 """How often another host's router tries the hub again, while it is unreachable."""
+ROUTER_ACCEPT_PENDING = 1000
+"""Connections the router lets be in their handshake (login) at once; Zenoh's default is 100.
+Anyone who can reach the port holds one with an idle TCP connection, so a hundred of them
+(a flood, a scan that keeps its sockets) kept every new login out, a restarted robot's and the
+operator's included, until they timed out."""
+ROUTER_ACCEPT_TIMEOUT_MS = 5000
+"""How long one connection may take for its handshake before the router drops it; Zenoh's
+default is 10 s.  A login on loopback takes milliseconds, one over TLS between hosts a few
+round trips."""
 EVERY_MESSAGE = (
     "put",
     "delete",
@@ -451,6 +463,10 @@ def router_config_document(
     if names is not None:
         link["tx"] = {"lease": ROUTER_LINK_LEASE_MS}
     transport["link"] = link
+    transport["unicast"] = {
+        "accept_pending": ROUTER_ACCEPT_PENDING,
+        "accept_timeout": ROUTER_ACCEPT_TIMEOUT_MS,
+    }
     document: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},

@@ -14,6 +14,7 @@ counted by robot1, which runs on.
 from __future__ import annotations
 
 import json
+import socket
 import struct
 import threading
 import time
@@ -41,6 +42,7 @@ from services.router.access import (
 )
 from swarm_config.credentials import ProcessCredentials, read_credentials
 from tests.integration.conftest import LiveSwarm
+from tests.support.waiting import wait_for
 from world.input_budget import BURST, PER_PERIOD
 
 pytestmark = pytest.mark.slow
@@ -564,3 +566,21 @@ def test_no_secret_in_logs_summary_status_or_telemetry(live_swarm: LiveSwarm) ->
     assert all(count == 0 for count in found.values()), found
     robot2_status = json.loads(texts["swarm status robot2"])  # `swarm status PROCESS`
     assert robot2_status["robot"] == "robot2" and robot2_status["timing"]["ticks"] > 0
+
+
+def test_idle_connections_held_to_the_router_keep_no_login_out(live_swarm: LiveSwarm) -> None:
+    # Before, a hundred idle TCP connections to the router's port filled Zenoh's room for
+    # logins (100 at once, each kept 10 s): `swarm status` could not log in within its 5 s,
+    # nor could a restarted robot, for as long as someone held them.
+    live = live_swarm
+    held: list[socket.socket] = []
+    try:
+        for _ in range(300):
+            held.append(socket.create_connection(("127.0.0.1", live.port), timeout=5))
+        status = live.cli("status")
+        assert status.returncode == 0, status.stderr
+        assert live.cli("restart", "robot3").returncode == 0
+        wait_for(lambda: live.cli("status", "robot3").returncode == 0, timeout_s=60)
+    finally:
+        for connection in held:
+            connection.close()
