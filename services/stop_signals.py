@@ -33,9 +33,9 @@ from types import FrameType
 STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 """SIGHUP too: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish."""
 STOP_POLL_S = 0.2
+"""How often a main thread waiting for a stop runs the signal handlers other threads noted."""
 EXIT_INTERRUPTED = 130
 """A command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
-"""How often a main thread waiting for a stop runs the signal handlers other threads noted."""
 
 
 class StopOnSignal:
