@@ -40,6 +40,7 @@ from pathlib import Path
 import zenoh
 
 from swarm_config.credentials import CREDENTIALS_FILE_ENV, ProcessCredentials, read_credentials
+from swarm_config.settings import SettingsError
 from swarm_config.tls import TLS_ROOT_CA_ENV, TlsError, root_ca_from_environment
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "zenoh"
@@ -156,7 +157,23 @@ def open_client(
             "`swarm up --tls`)"
         )
     with zenoh_runtime_while_opening(CLIENT_ZENOH_RUNTIME):
+        return open_session(config)
+
+
+def open_session(config: zenoh.Config) -> zenoh.Session:
+    """`zenoh.open`, with a $ZENOH_RUNTIME that Zenoh cannot read reported as the setting it
+    is (SettingsError): Zenoh panics on one when its first session starts, a traceback from
+    Rust in every process of the swarm."""
+    try:
         return zenoh.open(config)
+    except BaseException as exc:  # pyo3's PanicException derives from BaseException only
+        if type(exc).__name__ != "PanicException" or ZENOH_RUNTIME_ENV not in os.environ:
+            raise
+        raise SettingsError(
+            f"${ZENOH_RUNTIME_ENV}={os.environ[ZENOH_RUNTIME_ENV]!r} is not a runtime setting "
+            f"Zenoh can read ({exc}); unset it, and every process runs Zenoh on the threads "
+            "it chooses (robot_firmware/net/session.py)"
+        ) from None
 
 
 def split_endpoints(text: str) -> list[str]:

@@ -1195,7 +1195,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         code: int = args.handler(args)
-    except (ScenarioError, UsageError, TlsError, OutputFolderError) as exc:
+    except (ScenarioError, UsageError, TlsError, OutputFolderError, SettingsError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except FileWriteError as exc:  # a full disk, a quota, a read-only file system

@@ -14,6 +14,7 @@ import zenoh
 
 from robot_firmware.net.session import (
     ROUTER_ZENOH_RUNTIME,
+    open_session,
     router_config,
     zenoh_runtime_while_opening,
 )
@@ -33,7 +34,7 @@ def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
         return 2
     try:
         with zenoh_runtime_while_opening(ROUTER_ZENOH_RUNTIME):
-            session = zenoh.open(config)
+            session = open_session(config)
     except zenoh.ZError as exc:  # e.g. the port is taken: say so in one line, no traceback
         where = ", ".join(listen) if listen else "the config endpoints"
         log.error("cannot start the router on %s: %s", where, exc)

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -12,6 +15,9 @@ from robot_firmware.net.session import (
     ZENOH_RUNTIME_ENV,
     zenoh_runtime_while_opening,
 )
+from swarm_config.credentials import OPERATOR, generate_credential_set, write_credential_set
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_a_session_opened_without_a_runtime_setting_gets_it_and_leaves_none(
@@ -50,3 +56,31 @@ def test_a_failed_open_leaves_no_setting_behind(monkeypatch: pytest.MonkeyPatch)
     with pytest.raises(RuntimeError), zenoh_runtime_while_opening(CLIENT_ZENOH_RUNTIME):
         raise RuntimeError("no router there")
     assert ZENOH_RUNTIME_ENV not in os.environ
+
+
+@pytest.mark.parametrize("command", [("status",), ("router", "--listen", "tcp/127.0.0.1:9")])
+def test_a_runtime_setting_zenoh_cannot_read_is_one_line_naming_it(
+    command: tuple[str, ...], tmp_path: Path
+) -> None:
+    # Before, Zenoh's panic reached every process of the swarm as a Python traceback.
+    files = write_credential_set(
+        tmp_path / "credentials", generate_credential_set("lab", ("robot1",))
+    )
+    argv = [sys.executable, "-m", "services.cli.main", *command]
+    if command[0] == "status":
+        argv += ["--connect", "tcp/127.0.0.1:9", "--credentials", str(files[OPERATOR])]
+    refused = subprocess.run(
+        argv,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+        env={**os.environ, ZENOH_RUNTIME_ENV: "garbage", "RUST_BACKTRACE": "0"},
+    )
+    assert refused.returncode == 2, refused.stderr
+    last = refused.stderr.strip().splitlines()[-1]
+    assert last.startswith(
+        f"swarm {command[0]}: ${ZENOH_RUNTIME_ENV}='garbage' is not a runtime setting Zenoh can "
+        "read"
+    ), refused.stderr
+    assert "Traceback" not in refused.stderr
