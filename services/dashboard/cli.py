@@ -125,12 +125,23 @@ def run_dashboard(args: argparse.Namespace) -> int:
 def run_replay(args: argparse.Namespace) -> int:
     """`swarm replay FILE.rrd`: serve a recorded run to the web viewer."""
     from services.dashboard.live import viewer_url
+    from services.dashboard.recording_file import looks_like_recording
     from services.dashboard.replay import replay_command, serve_recording, server_memory_limit_for
     from services.listen_ports import check_port_free
 
     recording = Path(args.recording)
     if not recording.is_file():
         return _usage_error("replay", f"{recording}: no such recording")
+    try:
+        recording_readable = looks_like_recording(recording)
+    except OSError as exc:
+        return _usage_error("replay", f"{recording}: cannot read it ({exc.strerror or exc})")
+    if not recording_readable:
+        return _usage_error(
+            "replay",
+            f"{recording} is not a Rerun recording (it does not start as a .rrd file does); "
+            "`swarm dashboard --out DIR` records DIR/dashboard.rrd",
+        )
     try:
         check_port_free(args.grpc_port)
         check_port_free(args.web_port)

@@ -53,6 +53,17 @@ def whole_messages_length(stream: BinaryIO) -> int | None:
     return offset
 
 
+RECORDING_MAGIC_PREFIX = b"RRF"
+"""How every encoding of Rerun's recording files starts (then its version digit)."""
+
+
+def looks_like_recording(path: Path) -> bool:
+    """Whether the file starts as a Rerun recording of any encoding version does (it may still
+    be cut off or of a version this Rerun cannot read; the viewer says so)."""
+    with path.open("rb") as stream:
+        return stream.read(len(RECORDING_MAGIC_PREFIX)) == RECORDING_MAGIC_PREFIX
+
+
 def trim_partial_message(path: Path) -> int:
     """Truncate the recording at `path` to its whole messages; return the bytes cut off (0 for
     a whole file and for one this module does not understand)."""

@@ -6,6 +6,7 @@ import argparse
 import signal
 import socket
 import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from swarm_config.credentials import DASHBOARD, generate_credential_set, write_c
 from tests.dashboard.conftest import (
     FINISHED_RECORDING_CHUNKS,
     PAPER,
+    ROOT,
     Child,
     free_port,
     message_ends,
@@ -165,6 +167,19 @@ def test_replay_of_a_missing_file_is_a_usage_error(
     args = _parser().parse_args(["replay", str(tmp_path / "none.rrd")])
     assert args.handler(args) == 2
     assert "no such recording" in capsys.readouterr().err
+
+
+def test_replay_of_a_file_that_is_no_recording_is_a_usage_error(tmp_path: Path) -> None:
+    # Before, Rerun's server started on it: "No importer support" in Rerun's own log format,
+    # or, for an empty file, a server serving nothing until stopped.
+    for name, content in (("notes.rrd", b"robot1 ran well\n"), ("empty.rrd", b"")):
+        path = tmp_path / name
+        path.write_bytes(content)
+        argv = [sys.executable, "-m", "services.dashboard", "replay", str(path)]
+        argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+        refused = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=60)
+        assert refused.returncode == 2, refused.stderr
+        assert f"{path} is not a Rerun recording" in refused.stderr
 
 
 def _start_without_router(out: Path, children: list[Child], credentials: str) -> Child:
