@@ -18,6 +18,8 @@ import sys
 import threading
 from pathlib import Path
 
+from services.launcher.orphans import end_with_its_parent
+
 MIN_SERVER_MEMORY_MIB = 256
 
 
@@ -59,7 +61,7 @@ def replay_command(
 
 def serve_recording(command: list[str], stop: threading.Event, stop_timeout_s: float = 10.0) -> int:
     """Run the server until it exits or `stop` is set; its exit status, 0 after a stop."""
-    process = subprocess.Popen(command, stdin=subprocess.DEVNULL)
+    process = subprocess.Popen(command, stdin=subprocess.DEVNULL, preexec_fn=end_with_its_parent)
     try:
         while process.poll() is None and not stop.wait(0.2):
             pass

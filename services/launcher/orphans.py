@@ -40,3 +40,12 @@ def end_with_the_launcher() -> None:
         return
     if str(os.getppid()) != launcher_pid:  # it ended before the request was in place
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def end_with_its_parent() -> None:
+    """A `preexec_fn` for a child this process starts (between fork and exec): SIGTERM to the
+    child when this process ends, however it ends (Linux; nothing elsewhere).  `swarm replay`
+    gives it to Rerun's server, which a killed replay used to leave serving, holding its
+    ports."""
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)

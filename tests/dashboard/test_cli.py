@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import socket
 import subprocess
@@ -25,6 +26,7 @@ from tests.dashboard.conftest import (
     read_recording,
     start,
 )
+from tests.support.waiting import wait_for
 
 
 @pytest.fixture
@@ -246,3 +248,36 @@ def test_a_second_dashboard_recording_into_the_same_folder_is_refused(
     assert sorted(p.name for p in tmp_path.glob("*.rrd")) == ["dashboard.rrd"]
     assert first.stop(signal.SIGTERM, timeout_s=15) == 0
     assert "previous recording kept" not in first.output()
+
+
+def _state(pid: int) -> str | None:
+    """A process's state letter from /proc (Z: ended, not yet reaped), None once it is gone."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return None
+    return next(line.split()[1] for line in status.splitlines() if line.startswith("State:"))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and PR_SET_PDEATHSIG")
+def test_a_killed_replay_takes_reruns_server_with_it(
+    tmp_path: Path, children: list[Child], finished_recording: bytes
+) -> None:
+    # Before, `kill -9` of `swarm replay` left Rerun's server serving, holding both ports.
+    recording = tmp_path / "run.rrd"
+    recording.write_bytes(finished_recording)
+    argv = ["-m", "services.dashboard", "replay", str(recording)]
+    argv += ["--web-port", str(free_port()), "--grpc-port", str(free_port())]
+    replay = start("replay", argv, tmp_path / "logs")
+    children.append(replay)
+    replay.wait_for_line("open http://127.0.0.1:")
+    pid = replay.process.pid
+    servers = [int(child) for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    assert len(servers) == 1, servers
+    replay.process.kill()
+    replay.process.wait()
+    try:
+        wait_for(lambda: _state(servers[0]) in (None, "Z"), timeout_s=30)
+    finally:
+        if _state(servers[0]) not in (None, "Z"):
+            os.kill(servers[0], signal.SIGKILL)  # what the test found left behind
