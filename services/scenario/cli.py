@@ -55,7 +55,13 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         name=args.name,
     )
     text = generate_scenario_text(request)
-    write_text_file(Path(args.out), text)
+    out = Path(args.out)
+    if not args.force and out.is_file() and out.read_bytes() != text.encode("utf-8"):
+        raise ScenarioGenerationError(
+            f"--out {out} exists and holds another scenario; give --force to replace it, or "
+            "another file name"
+        )
+    write_text_file(out, text)
     print(f"wrote {args.out} ({request.robots} robots, {request.formation})")
     return 0
 
@@ -134,7 +140,16 @@ def add_scenario_parser(sub: Any) -> None:
         "--duration", type=float, default=60.0, metavar="S", help="duration_s (default: 60)"
     )
     generate.add_argument("--name", help="scenario name (default: FORMATION-N)")
-    generate.add_argument("--out", required=True, metavar="FILE", help="scenario file to write")
+    generate.add_argument(
+        "--out",
+        required=True,
+        metavar="FILE",
+        help="scenario file to write; an existing file is replaced only with --force (or when "
+        "it holds exactly what this command writes)",
+    )
+    generate.add_argument(
+        "--force", action="store_true", help="replace --out even if it holds another scenario"
+    )
     generate.set_defaults(handler=_cmd_generate)
 
 

@@ -70,3 +70,19 @@ def test_an_unwritable_destination_is_a_usage_error(
     assert "cannot write" in capsys.readouterr().err
     assert main(["scenario", "generate", "--robots", "3", "--out", str(tmp_path)]) == 2
     assert "is a directory" in capsys.readouterr().err
+
+
+def test_a_file_that_holds_another_scenario_is_replaced_only_with_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Before, a hand-edited scenario given as --out was overwritten without a word.
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("# my own scenario, edited by hand\n")
+    args = ["scenario", "generate", "--robots", "4", "--out", str(mine)]
+    assert main(args) == 2
+    assert "exists and holds another scenario; give --force" in capsys.readouterr().err
+    assert mine.read_text() == "# my own scenario, edited by hand\n"
+    assert main([*args, "--force"]) == 0
+    generated = mine.read_bytes()
+    assert main(args) == 0  # the same command again: the file already holds what it writes
+    assert mine.read_bytes() == generated
