@@ -80,7 +80,7 @@ from robot_firmware.net.messages import (
 from robot_firmware.net.session import open_client
 from services.launcher.orphans import LAUNCHER_PID_ENV
 from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
-from services.listen_ports import endpoint_listen_problem
+from services.listen_ports import bind_problem, endpoint_listen_problem
 from services.output_folder import prepare_output_folder
 from services.router.access import (
     ROUTER_CONFIG_FILE,
@@ -241,6 +241,19 @@ class LaunchPlan:
             raise ValueError("a host that joins a world elsewhere must start a robot")
         if self.link_connect and self.link_listen:
             raise ValueError("a host either runs the world (link_listen) or joins one elsewhere")
+        if self.dashboard and self.runs_world:
+            ports = {
+                "--port": int(self.endpoint.rpartition(":")[2]),
+                "--web-port": self.web_port,
+                "--grpc-port": self.grpc_port,
+            }
+            for flag, port in ports.items():
+                same = [other for other, taken in ports.items() if taken == port and other != flag]
+                if same:
+                    raise ValueError(
+                        f"{flag} and {same[0]} are both {port}: the router and the dashboard's "
+                        "two servers each need a port of their own"
+                    )
         if self.across_hosts and self.credentials_dir is None:
             raise CredentialsError(
                 "a swarm across hosts shares one credentials set: make it with `swarm "
@@ -592,6 +605,19 @@ class Launcher:
                     f"cannot listen on {endpoint}: {problem.strerror or problem}, so nothing was "
                     f"started{hint}"
                 )
+        if "dashboard" in self.children:
+            for flag, port in (
+                ("--web-port", self.plan.web_port),
+                ("--grpc-port", self.plan.grpc_port),
+            ):
+                taken = bind_problem("0.0.0.0", port)
+                if taken is not None:
+                    self.shutdown()
+                    raise LaunchError(
+                        f"the dashboard cannot serve on port {port} ({flag}): "
+                        f"{taken.strerror or taken}, so nothing was started (give another "
+                        f"{flag}, or --no-dashboard to run without it)"
+                    )
         self.start("router")
         try:
             opened = self._launcher_session()

@@ -655,3 +655,23 @@ def test_clients_reconnect_after_the_router_restarts(live_swarm: LiveSwarm) -> N
                 > accepted + 10
             )
         )
+
+
+def test_swarm_up_with_its_dashboards_port_taken_says_so_and_starts_nothing(
+    tmp_path: Path,
+) -> None:
+    # Before, the swarm ran, printed the dashboard's URL, and the dashboard exited at once.
+    with socket.socket() as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        taken.bind(("0.0.0.0", 0))
+        taken.listen()
+        web_port = taken.getsockname()[1]
+        out = tmp_path / "up"
+        argv = ["up", "--out", str(out), "--port", str(free_port()), "--duration", "3"]
+        refused = swarm_cli(*argv, "--web-port", str(web_port), "--grpc-port", str(free_port()))
+    assert refused.returncode == 1, refused.stderr
+    assert refused.stderr.startswith(
+        f"swarm up: the dashboard cannot serve on port {web_port} (--web-port): Address already"
+    ), refused.stderr
+    assert "--no-dashboard to run without it" in refused.stderr
+    assert list((out / "logs").iterdir()) == []

@@ -237,3 +237,30 @@ def test_a_router_that_runs_but_never_lets_the_launcher_in_ends_the_start_with_i
         launcher.up()
     assert [child.pid for child in factory.started] == [factory.started[0].pid]  # only the router
     assert not launcher.children["router"].running  # and it was stopped
+
+
+@pytest.mark.parametrize(
+    ("ports", "named"),
+    [
+        ({"web_port": 9100, "grpc_port": 9100}, "--web-port and --grpc-port are both 9100"),
+        ({"web_port": 7447}, "--port and --web-port are both 7447"),
+        ({"grpc_port": 7447}, "--port and --grpc-port are both 7447"),
+    ],
+)
+def test_a_port_given_twice_is_refused_before_anything_is_written(
+    tmp_path: Path, ports: dict[str, int], named: str
+) -> None:
+    # Before, the swarm ran and its dashboard exited at once, after the URL had been printed.
+    out = tmp_path / "run"
+    plan = LaunchPlan(scenario=PAPER, robots=("robot1",), out_dir=out, **ports)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=named):
+        Launcher(plan, factory=StandInFactory())  # type: ignore[arg-type]
+    assert not out.exists()
+    without_dashboard = LaunchPlan(
+        scenario=PAPER,
+        robots=("robot1",),
+        out_dir=out,
+        dashboard=False,
+        **ports,  # type: ignore[arg-type]
+    )
+    without_dashboard.check()
