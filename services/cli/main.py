@@ -564,8 +564,9 @@ def _ask_if_answered(
         raise UsageError(
             f"no router at {endpoint} let the {credentials.identity} in within "
             f"{CONNECT_TIMEOUT_S:g} s: "
-            "no swarm runs there (start one with `swarm up`), or it is another run's "
-            "(give that run's operator credentials with --credentials)"
+            "no swarm runs there (start one with `swarm up`), it is another run's "
+            "(give that run's operator credentials with --credentials), or its router is "
+            "stopped (`swarm fault stop router`: continue it with `kill -CONT` and its pid)"
         ) from None
 
 
@@ -654,6 +655,15 @@ def _cmd_fault(args: argparse.Namespace) -> int:
     if args.dry_run:
         print(body.decode())
         return 0
+    stops_router = fault.kind == "process" and fault.fault == "stop"
+    stops_router = stops_router and fault_subjects(fault)[0] == "router"
+    router_pid = _router_pid(args) if stops_router else None
+    # Every command passes the router, `swarm fault cont router` too: only a signal from this
+    # host continues a stopped one.
+    how_to_continue = (
+        "swarm fault: the router is stopped, so no command reaches the swarm until it "
+        f"continues: `kill -CONT {router_pid or '<its pid>'}`"
+    )
     if _ask_if_answered(args, "world", "status", None) is None:
         if fault.kind != "process":
             raise _no_answer(args, "world")
@@ -663,8 +673,15 @@ def _cmd_fault(args: argparse.Namespace) -> int:
             f"{fault.fault} {process} directly (no world records it in events.jsonl)",
             file=sys.stderr,
         )
-        return _print_reply(_ask(args, "launcher", fault.fault, ProcessRequest(process=process)))
+        request = ProcessRequest(process=process)
+        if stops_router:  # its answer cannot pass the router it stopped
+            _ask_if_answered(args, "launcher", fault.fault, request)
+            print(how_to_continue, file=sys.stderr)
+            return 0
+        return _print_reply(_ask(args, "launcher", fault.fault, request))
     payload = _ask_if_answered(args, "world", "fault", body)
+    if stops_router:
+        print(how_to_continue, file=sys.stderr)
     if payload is None and fault.kind == "process" and fault_subjects(fault)[0] == "world":
         print(
             f"swarm fault: the world took `{fault.fault}` on itself and gave no answer (it "
@@ -688,6 +705,18 @@ def _cmd_fault(args: argparse.Namespace) -> int:
     if payload is None:
         raise _no_answer(args, "world")
     return _print_reply(payload)
+
+
+def _router_pid(args: argparse.Namespace) -> int | None:
+    """The router's process id from the launcher's status, or None (no launcher answers, as
+    under compose, or it names none)."""
+    from robot_firmware.net.messages import LauncherStatusReply, parse_reply
+
+    payload = _ask_if_answered(args, "launcher", "status", None)
+    status = None if payload is None else parse_reply(LauncherStatusReply, payload)
+    if not isinstance(status, LauncherStatusReply) or "router" not in status.processes:
+        return None
+    return status.processes["router"].pid
 
 
 def _cmd_net(args: argparse.Namespace) -> int:

@@ -675,3 +675,19 @@ def test_swarm_up_with_its_dashboards_port_taken_says_so_and_starts_nothing(
     ), refused.stderr
     assert "--no-dashboard to run without it" in refused.stderr
     assert list((out / "logs").iterdir()) == []
+
+
+def test_a_stopped_router_is_continued_with_the_pid_swarm_fault_names(
+    live_swarm: LiveSwarm,
+) -> None:
+    # Before, `swarm fault stop router` left no way back through the swarm's own commands,
+    # and nothing said which process to continue.
+    live = live_swarm
+    router_pid = live.all_running()["processes"]["router"]["pid"]
+    stopped = live.cli("fault", "stop", "router")
+    assert f"continues: `kill -CONT {router_pid}`" in stopped.stderr, stopped.stderr
+    refused = live.cli("status")
+    assert refused.returncode == 2
+    assert "or its router is stopped (`swarm fault stop router`" in refused.stderr
+    os.kill(router_pid, signal.SIGCONT)
+    assert live.all_running()["processes"]["router"]["pid"] == router_pid
