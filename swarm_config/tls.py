@@ -100,6 +100,12 @@ def tls_dir(credentials_dir: Path) -> Path:
     return credentials_dir / TLS_DIR_NAME
 
 
+def is_dns_name(host: str) -> bool:
+    """Whether `host` is a DNS name: dot-separated labels of letters, digits and inner hyphens
+    (RFC 1123), 253 characters at most."""
+    return len(host) <= _MAX_DNS_NAME_CHARS and _DNS_NAME.match(host) is not None
+
+
 def subject_alt_name(hosts: Sequence[str]) -> str:
     """The subjectAltName value for `hosts` ('IP:127.0.0.1, DNS:localhost'); TlsError for a
     host that is neither an IP address nor a DNS name, or for no host at all."""
@@ -112,7 +118,7 @@ def subject_alt_name(hosts: Sequence[str]) -> str:
             continue
         except ValueError:
             pass
-        if len(host) > _MAX_DNS_NAME_CHARS or not _DNS_NAME.match(host):
+        if not is_dns_name(host):
             raise TlsError(
                 f"--tls-host {host!r} is neither an IP address nor a DNS name "
                 "(e.g. 192.168.1.20 or router.lab)"

@@ -14,8 +14,7 @@ import argparse
 import ipaddress
 import re
 
-HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
-"""One label of a DNS name (RFC 1123): letters, digits and hyphens, no hyphen at either end."""
+from swarm_config.tls import is_dns_name
 
 MEMORY_SIZE = re.compile(r"(?P<number>\d+(?:\.\d+)?)\s*(?P<unit>B|kB|KiB|MB|MiB|GB|GiB|TB|TiB|%)")
 """A memory size as Rerun reads it, e.g. 256MiB, 1.5GB, 50% (of this machine's memory)."""
@@ -37,8 +36,7 @@ def browser_host(text: str) -> str:
                 "machine's name or address as the browser reaches it"
             )
         return f"[{address.compressed}]" if address.version == 6 else address.compressed
-    labels = host.removesuffix(".").split(".")
-    if len(host) > 253 or not all(HOST_LABEL.fullmatch(label) for label in labels):
+    if not is_dns_name(host):
         raise ValueError(
             f"{text!r} is not a host name or address (e.g. 127.0.0.1, robots-lab.local, "
             "[::1]); give the host only, without a scheme, port or path"

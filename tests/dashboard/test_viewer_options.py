@@ -14,7 +14,6 @@ from services.dashboard.viewer_options import browser_host, server_memory_limit
         ("127.0.0.1", "127.0.0.1"),
         ("localhost", "localhost"),
         ("robots-lab.example.org", "robots-lab.example.org"),
-        ("robots-lab.example.org.", "robots-lab.example.org."),
         ("::1", "[::1]"),
         ("[::1]", "[::1]"),
         ("fe80:0:0::1", "[fe80::1]"),
