@@ -129,10 +129,43 @@ malformed inputs (a tab inside a plain scalar, a byte-order mark between lines),
 models behind every loader then judge like any other value."""
 
 
+_MERGE_KEY_TAG = "tag:yaml.org,2002:merge"
+
+
+class _UniqueKeySafeLoader(_SafeLoader):  # type: ignore[misc,valid-type]  # a base chosen at import
+    """`_SafeLoader` that refuses a mapping holding one key twice.  PyYAML keeps the last of
+    the two silently, so a scenario with `duration_s` written twice ran the second one and a
+    parameter file's repeated key hid the first value.  Keys a merge (`<<: *anchor`) brings in
+    are not repeats: the mapping's own keys override them, as YAML says."""
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[object, object]:
+        if isinstance(node, yaml.MappingNode):
+            first_seen: dict[object, yaml.Node] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == _MERGE_KEY_TAG:
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = first_seen.setdefault(key, key_node)
+                except TypeError:  # an unhashable key, which the base constructor refuses
+                    continue
+                if first is not key_node:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping",
+                        node.start_mark,
+                        f"found the key {key!r} twice (first on line {first.start_mark.line + 1})",
+                        key_node.start_mark,
+                    )
+        mapping: dict[object, object] = super().construct_mapping(node, deep=deep)
+        return mapping
+
+
 def parse_yaml(text: str | bytes) -> object:
-    """`yaml.safe_load` of `text`, on libyaml where available (`_SafeLoader`).  Raises what
-    safe_load raises: yaml.YAMLError, ValueError (an impossible date), RecursionError."""
-    return yaml.load(text, Loader=_SafeLoader)
+    """`yaml.safe_load` of `text`, on libyaml where available (`_SafeLoader`), refusing a key
+    written twice in one mapping (`_UniqueKeySafeLoader`).  Raises what safe_load raises:
+    yaml.YAMLError (a repeated key included), ValueError (an impossible date),
+    RecursionError."""
+    return yaml.load(text, Loader=_UniqueKeySafeLoader)
 
 
 INPUT_FILE_BYTES_MAX = 8 << 20

@@ -374,3 +374,16 @@ def test_yaml_traps_in_a_parameter_file_are_refused(robot: Robot) -> None:
             robot.process.admin_handlers(), "params", f"error_centres: {trap}\n".encode()
         )
         assert isinstance(reply, AdminError) and reply.reason != AdminRefusal.HANDLER_FAILED, trap
+
+
+def test_a_parameter_file_with_a_key_twice_is_refused_and_the_old_parameters_stay(
+    robot: Robot,
+) -> None:
+    handlers = robot.process.admin_handlers()
+    before = answer(handlers, "params", b"")
+    # Valid as either of its two `error_centres`: PyYAML alone would take the second.
+    repeated = b"error_centres: [-1, 0, 1]\nrate_centres: [-1, 0, 1]\nerror_centres: [-1, 1]\n"
+    reply = answer(handlers, "params", repeated)
+    assert isinstance(reply, AdminError) and reply.reason == AdminRefusal.NOT_YAML
+    assert "twice" in reply.error
+    assert answer(handlers, "params", b"") == before

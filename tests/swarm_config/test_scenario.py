@@ -1,16 +1,18 @@
+import re
 from pathlib import Path
 
 import pytest
 import yaml
 
 from swarm_config.scenario import (
+    RUN_SCENARIO_FILE,
     ScenarioError,
     load_rule_base,
     load_scenario,
     parse_scenario,
     snapshot_scenario,
 )
-from swarm_config.settings import INPUT_FILE_BYTES_MAX
+from swarm_config.settings import INPUT_FILE_BYTES_MAX, parse_yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -81,6 +83,34 @@ def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
     broken.write_text("name: [unclosed\n")
     with pytest.raises(ScenarioError, match="not valid YAML"):
         load_scenario(broken)
+
+
+def test_a_key_written_twice_is_refused_naming_it_and_both_lines(tmp_path: Path) -> None:
+    """PyYAML keeps the last of two equal keys; a scenario with `duration_s` twice ran the
+    second one.  Both the loader and the run's copy refuse it."""
+    text = PAPER.read_text(encoding="utf-8")
+    first_line = text.splitlines().index("duration_s: 60.0") + 1
+    twice = tmp_path / "twice.yaml"
+    twice.write_text(text.replace("duration_s: 60.0\n", "duration_s: 60.0\nduration_s: 0.5\n"))
+    expected = f"found the key 'duration_s' twice \\(first on line {first_line}\\)"
+    with pytest.raises(ScenarioError, match="not valid YAML") as refused:
+        load_scenario(twice)
+    assert re.search(expected, str(refused.value)), refused.value
+    assert f"line {first_line + 1}," in str(refused.value)
+    with pytest.raises(ScenarioError, match=expected):
+        snapshot_scenario(twice, tmp_path)
+    assert not (tmp_path / RUN_SCENARIO_FILE).exists()
+    nested = tmp_path / "nested.yaml"
+    nested.write_text(text.replace("  radius_m: 1.5\n", "  radius_m: 1.5\n  radius_m: 2.5\n"))
+    with pytest.raises(ScenarioError, match="found the key 'radius_m' twice"):
+        load_scenario(nested)
+
+
+def test_keys_a_merge_brings_in_are_overridden_not_repeated() -> None:
+    data = parse_yaml("base: &b {x: 1, y: 2}\nover:\n  <<: *b\n  x: 5\n")
+    assert data == {"base": {"x": 1, "y": 2}, "over": {"x": 5, "y": 2}}
+    with pytest.raises(yaml.YAMLError, match="found the key 'a' twice"):
+        parse_yaml('{"a": 1, "a": 2}')  # JSON too
 
 
 def test_a_file_too_large_or_endless_is_refused_before_it_is_read_whole(tmp_path: Path) -> None:
