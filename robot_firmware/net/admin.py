@@ -175,7 +175,10 @@ def ask(
     payload = body.model_dump_json().encode() if isinstance(body, BaseModel) else body
     try:
         session = open_client(
-            [endpoint], credentials=credentials, connect_timeout_s=connect_timeout_s
+            [endpoint],
+            credentials=credentials,
+            connect_timeout_s=connect_timeout_s,
+            zenoh_errors_logged=False,
         )
     except zenoh.ZError:
         raise RouterUnreachableError(endpoint) from None

@@ -139,12 +139,22 @@ def open_client(
     credentials: ProcessCredentials | None = None,
     tls_root_ca: Path | None = None,
     connect_timeout_s: float | None = None,
+    zenoh_errors_logged: bool = True,
 ) -> zenoh.Session:
     """A client session logged in with `credentials` (else those of $SWARM_CREDENTIALS_FILE,
     else none), trusting `tls_root_ca` (else $SWARM_TLS_ROOT_CA) on `tls/` links; with the
     default config it waits for the router to come up, with `connect_timeout_s` at most that
-    long (then zenoh.ZError: no router there, or it refused the login)."""
-    zenoh.init_log_from_env_or("error")
+    long (then zenoh.ZError: no router there, or it refused the login).
+
+    Zenoh writes its own log to stdout, the log file of a process `swarm up` starts; its errors
+    are logged there unless `zenoh_errors_logged` is false, which the command line asks for:
+    its stdout is the user's (`swarm status robot1 | jq`), and a refused login would put
+    Zenoh's error lines into it beside the command's own one-line answer.  $RUST_LOG still
+    turns Zenoh's log on in any process."""
+    if zenoh_errors_logged:
+        zenoh.init_log_from_env_or("error")
+    else:
+        zenoh.try_init_log_from_env()
     login = credentials if credentials is not None else credentials_from_environment()
     ca = tls_root_ca if tls_root_ca is not None else root_ca_from_environment()
     config = client_config(connect, config_file, login, ca, connect_timeout_s)

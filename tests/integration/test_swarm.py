@@ -311,6 +311,38 @@ def test_commands_without_a_swarm_say_so_instead_of_waiting(tmp_path: Path) -> N
         assert time.monotonic() - started < 25  # generous: a loaded machine starts Python slowly
 
 
+def test_a_login_the_router_refuses_is_one_line_on_stderr_and_nothing_on_stdout(
+    tmp_path: Path,
+) -> None:
+    # Before, Zenoh's own error lines for the refused login went to the command's stdout,
+    # into whatever read it (`swarm status robot1 | jq`), ahead of the command's own answer.
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    for run in ("this", "another"):
+        made = swarm_cli("credentials", str(tmp_path / run), "--listen", endpoint)
+        assert made.returncode == 0, made.stderr
+    log_path = tmp_path / "router.log"
+    with log_path.open("wb") as log:
+        router = subprocess.Popen(
+            [sys.executable, "-m", "services.cli.main", "router"]
+            + ["--config", str(tmp_path / "this" / "router.json5")],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+        )
+    try:
+        wait_for(lambda: "router listening" in log_path.read_text(), timeout_s=30)
+        another_operator = str(tmp_path / "another" / "operator.json")
+        for command in (("status",), ("status", "robot1"), ("regs", "robot1")):
+            refused = swarm_cli(*command, "--connect", endpoint, "--credentials", another_operator)
+            assert refused.returncode == 2, (command, refused.stderr)
+            assert refused.stdout == "", (command, refused.stdout)
+            lines = refused.stderr.splitlines()
+            assert len(lines) == 1 and f"no router at {endpoint}" in lines[0], refused.stderr
+    finally:
+        router.terminate()
+        router.wait(timeout=30)
+
+
 def test_swarm_up_on_a_taken_port_says_so_and_starts_nothing_else(tmp_path: Path) -> None:
     # Before, the launcher waited forever for a router that had died, deaf to Ctrl-C.
     with socket.socket() as taken:
