@@ -24,6 +24,7 @@ from services.launcher.orphans import end_with_the_launcher
 from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.real_time_hold import real_time_shortfalls
+from services.standard_output import guard_standard_output
 from services.stop_signals import EXIT_INTERRUPTED, interrupt_once, stop_on_signals
 from swarm_config.atomic_files import FileWriteError
 from swarm_config.credentials import (
@@ -1222,8 +1223,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
+    # This process's own command goes on when its stdout's device refuses writes (a full disk).
+    output = guard_standard_output(args.command) if argv is None else None
     try:
         code: int = args.handler(args)
+        if output is not None:
+            output.flush()
     except (ScenarioError, UsageError, TlsError, OutputFolderError, SettingsError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -1237,6 +1242,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The reader of our output went away (e.g. `| head`); nothing left to say.
         sys.stderr.close()
         return 0
+    if output is not None and output.lost is not None and code == 0:
+        return EXIT_WRITE_FAILED
     return code
 
 

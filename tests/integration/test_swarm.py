@@ -343,6 +343,28 @@ def test_a_login_the_router_refuses_is_one_line_on_stderr_and_nothing_on_stdout(
         router.wait(timeout=30)
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full on this system")
+def test_swarm_up_with_stdout_on_a_full_device_runs_to_its_end(tmp_path: Path) -> None:
+    # Before, the first line it printed after starting the swarm raised, and the launcher took
+    # every process down with it: no run, a traceback, status 1.
+    out = tmp_path / "run"
+    with open("/dev/full", "w") as full:
+        ran = subprocess.run(
+            [sys.executable, "-m", "services.cli.main", "up", "--out", str(out)]
+            + ["--port", str(free_port()), "--no-dashboard", "--lockstep", "--duration", "2"],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+            timeout=600,
+        )
+    assert ran.returncode == 1, ran.stderr
+    assert "Traceback" not in ran.stderr, ran.stderr
+    assert ran.stderr.count("swarm up: cannot write to standard output") == 1, ran.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["duration_s"] == pytest.approx(2.0)
+
+
 def test_swarm_up_on_a_taken_port_says_so_and_starts_nothing_else(tmp_path: Path) -> None:
     # Before, the launcher waited forever for a router that had died, deaf to Ctrl-C.
     with socket.socket() as taken:
