@@ -626,15 +626,42 @@ def _print_world_line(args: argparse.Namespace) -> None:
 
 
 def _cmd_kill(args: argparse.Namespace) -> int:
-    from robot_firmware.net.messages import ProcessRequest
-
-    return _print_reply(_ask(args, "launcher", "kill", ProcessRequest(process=args.process)))
+    return _ask_launcher_to(args, "kill", args.process)
 
 
 def _cmd_restart(args: argparse.Namespace) -> int:
+    return _ask_launcher_to(args, "restart", args.process)
+
+
+def _ask_launcher_to(args: argparse.Namespace, verb: str, process: str) -> int:
+    """Ask the launcher to `verb` (kill, restart) `process` and print its answer.  The answer
+    to one on the router goes down with the router it kills: then the launcher's status is
+    shown once it answers again, through the router it started anew."""
     from robot_firmware.net.messages import ProcessRequest
 
-    return _print_reply(_ask(args, "launcher", "restart", ProcessRequest(process=args.process)))
+    request = ProcessRequest(process=process)
+    if process != "router":
+        return _print_reply(_ask(args, "launcher", verb, request))
+    payload = _ask_if_answered(args, "launcher", verb, request)
+    if payload is None:
+        return _print_launcher_status_after_router(args, verb)
+    return _print_reply(payload)
+
+
+def _print_launcher_status_after_router(args: argparse.Namespace, verb: str) -> int:
+    """No answer came after `verb router`, as none can: say so, then print the launcher's
+    status once it has reconnected to the router it started again."""
+    print(
+        f"swarm {args.command}: no answer through the router after `{verb} router` (the "
+        "answer went down with it); the launcher's status:",
+        file=sys.stderr,
+    )
+    deadline_s = time.monotonic() + ROUTER_BACK_WITHIN_S
+    while (status := _ask_if_answered(args, "launcher", "status", None, True)) is None:
+        if time.monotonic() > deadline_s:
+            raise _no_answer(args, "launcher")
+        time.sleep(0.5)
+    return _print_reply(status)
 
 
 def _cmd_fault(args: argparse.Namespace) -> int:
@@ -674,12 +701,11 @@ def _cmd_fault(args: argparse.Namespace) -> int:
             f"{fault.fault} {process} directly (no world records it in events.jsonl)",
             file=sys.stderr,
         )
-        request = ProcessRequest(process=process)
         if stops_router:  # its answer cannot pass the router it stopped
-            _ask_if_answered(args, "launcher", fault.fault, request)
+            _ask_if_answered(args, "launcher", fault.fault, ProcessRequest(process=process))
             print(how_to_continue, file=sys.stderr)
             return 0
-        return _print_reply(_ask(args, "launcher", fault.fault, request))
+        return _ask_launcher_to(args, fault.fault, process)
     payload = _ask_if_answered(args, "world", "fault", body)
     if stops_router:
         print(how_to_continue, file=sys.stderr)
@@ -691,18 +717,7 @@ def _cmd_fault(args: argparse.Namespace) -> int:
         )
         return _print_reply(_ask(args, "launcher", "status", None))
     if payload is None and fault.kind == "process" and fault_subjects(fault)[0] == "router":
-        print(
-            f"swarm fault: no answer through the router after `{fault.fault} router` (the "
-            "answer went down with it); the launcher's status:",
-            file=sys.stderr,
-        )
-        # The launcher answers again once it has reconnected to the new router.
-        deadline_s = time.monotonic() + ROUTER_BACK_WITHIN_S
-        while (status := _ask_if_answered(args, "launcher", "status", None, True)) is None:
-            if time.monotonic() > deadline_s:
-                raise _no_answer(args, "launcher")
-            time.sleep(0.5)
-        return _print_reply(status)
+        return _print_launcher_status_after_router(args, fault.fault)
     if payload is None:
         raise _no_answer(args, "world")
     return _print_reply(payload)

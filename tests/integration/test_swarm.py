@@ -709,6 +709,17 @@ def test_clients_reconnect_after_the_router_restarts(live_swarm: LiveSwarm) -> N
                 > accepted + 10
             )
         )
+    # The same through the command line.  Before, `swarm kill router` and `swarm restart
+    # router` did it and then said "no answer from launcher ... (is it running?)", status 2:
+    # the answer went down with the router.
+    pid = restarted["processes"]["router"]["pid"]
+    for restarts, verb in enumerate(("kill", "restart"), start=2):
+        done = live_swarm.cli(verb, "router")
+        assert done.returncode == 0, done.stderr
+        assert f"no answer through the router after `{verb} router`" in done.stderr
+        router = json.loads(done.stdout)["processes"]["router"]
+        assert router["restarts"] == restarts and router["running"] and router["pid"] != pid
+        pid = router["pid"]
 
 
 def test_swarm_up_with_its_dashboards_port_taken_says_so_and_starts_nothing(
