@@ -28,7 +28,13 @@ def prepare_output_folder(path: Path, option: str, *, mode: int = DEFAULT_FOLDER
     Raises OutputFolderError, whose message starts with `option` and the path, when `path` is
     not a folder, cannot be created, or is not writable.
     """
-    if path.exists() and not path.is_dir():
+    try:
+        is_a_file = path.exists() and not path.is_dir()
+    except OSError as exc:  # a name too long for the file system, a loop of links
+        raise OutputFolderError(
+            f"{option} {path}: cannot use the folder ({exc.strerror or exc})"
+        ) from None
+    if is_a_file:
         raise OutputFolderError(f"{option} {path} exists and is not a folder")
     try:
         path.mkdir(parents=True, exist_ok=True, mode=mode)

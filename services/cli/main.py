@@ -7,6 +7,7 @@ scenario, missing file) prints one clear message and exits with status 2, never 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import sys
@@ -23,6 +24,7 @@ from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
 from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
+from services.path_arguments import empty_path_problem
 from services.real_time_hold import real_time_shortfalls
 from services.standard_output import guard_standard_output
 from services.stop_signals import EXIT_INTERRUPTED, interrupt_once, stop_on_signals
@@ -61,6 +63,8 @@ from swarm_config.tls import (
 
 EXIT_USAGE = 2
 EXIT_WRITE_FAILED = 1
+UNUSABLE_PATH_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP})
+"""What a file system call answers a path given on the command line that no call can take."""
 ROUTER_BACK_WITHIN_S = 20.0
 """How long `swarm fault kill|restart router` waits for the launcher behind the new router."""
 
@@ -1238,6 +1242,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
+    empty_path = empty_path_problem(args)
+    if empty_path is not None:
+        print(f"swarm {args.command}: {empty_path}", file=sys.stderr)
+        return EXIT_USAGE
     # This process's own command goes on when its stdout's device refuses writes (a full disk).
     output = guard_standard_output(args.command) if argv is None else None
     try:
@@ -1257,6 +1265,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The reader of our output went away (e.g. `| head`); nothing left to say.
         sys.stderr.close()
         return 0
+    except OSError as exc:
+        if exc.errno not in UNUSABLE_PATH_ERRNOS:
+            raise
+        # A path the user gave that no file system call takes: a name over 255 bytes, a path
+        # over 4096, a loop of symbolic links (pathlib's exists() and is_dir() raise these).
+        print(f"swarm {args.command}: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return EXIT_USAGE
     if output is not None and output.lost is not None and code == 0:
         return EXIT_WRITE_FAILED
     return code

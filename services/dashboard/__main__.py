@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 from services.dashboard.cli import add_dashboard_parsers
 from services.log_setup import LogLevelError, set_up_logging
+from services.path_arguments import empty_path_problem
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -24,6 +25,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
+        return 2
+    empty_path = empty_path_problem(args)
+    if empty_path is not None:
+        print(f"python -m services.dashboard {args.command}: {empty_path}", file=sys.stderr)
         return 2
     code: int = args.handler(args)
     return code

@@ -149,3 +149,56 @@ def test_a_run_shorter_than_one_control_period_is_refused_before_anything_starts
         "of scenario 'paper' (0.01 s): nothing would run"
     )
     assert not out.exists()
+
+
+PAPER = str(ROOT / "configs" / "scenarios" / "paper.yaml")
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["up", "--out", "", "--no-dashboard"], "--out"),
+        (["up", "--credentials", ""], "--credentials"),
+        (["sim", "--scenario", PAPER, "--out", ""], "--out"),
+        (["sim", "--scenario", "", "--out", "run"], "--scenario"),
+        (["tune", "--scenario", PAPER, "--out", ""], "--out"),
+        (["credentials", ""], "DIR"),
+        (["dashboard", "--out", ""], "--out"),
+        (["replay", ""], "FILE.rrd"),
+        (["status", "--credentials", ""], "--credentials"),
+        (["params", "robot1", ""], "FILE"),
+        (["world", "--config", ""], "--config"),
+        (["scenario", "generate", "--robots", "3", "--out", ""], "--out"),
+    ],
+)
+def test_an_empty_path_is_refused_and_nothing_is_written_here(
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
+    argv: list[str],
+    named: str,
+) -> None:
+    # Before, '' was the current folder: `swarm up --out ''` wrote a whole run into it,
+    # credentials included, and `swarm credentials ''` its secrets.
+    monkeypatch.chdir(tmp_path)
+    refused = _refused(argv, capsys)
+    assert f"{named} is an empty path (write . for the current folder)" in refused, refused
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sim", "--scenario", PAPER, "--out", "NAME"],
+        ["tune", "--scenario", PAPER, "--out", "NAME", "--budget", "1"],
+        ["credentials", "NAME"],
+        ["sim", "--scenario", "NAME", "--out", "run"],
+    ],
+)
+def test_a_name_too_long_for_the_file_system_is_one_line(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, argv: list[str]
+) -> None:
+    # Before, pathlib's exists() and is_dir() raised ENAMETOOLONG: a traceback.
+    too_long = str(tmp_path / ("a" * 300))
+    refused = _refused([too_long if word == "NAME" else word for word in argv], capsys)
+    assert "File name too long" in refused and too_long in refused, refused
