@@ -110,10 +110,11 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     comparison = s.get("comparison")
     if isinstance(comparison, dict):
         for label, entry in comparison.items():
+            # A scenario of the leader alone has no formation error to give.
+            formation = ", ".join(_cm(v) for v in entry["formation_rms_m"].values()) or "n/a"
             print(
                 f"  {label:<20} leader {_cm(entry['leader_tracking_rms_m'])}, formation "
-                f"{', '.join(_cm(v) for v in entry['formation_rms_m'].values())}, "
-                f"fitness (16) {_db(entry['fitness_snr_db'])}"
+                f"{formation}, fitness (16) {_db(entry['fitness_snr_db'])}"
             )
     print(f"wrote {outputs.summary_path}")
     for path in outputs.figure_paths:

@@ -62,7 +62,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             "another file name"
         )
     write_text_file(out, text)
-    print(f"wrote {args.out} ({request.robots} robots, {request.formation})")
+    robots = "1 robot" if request.robots == 1 else f"{request.robots} robots"
+    print(f"wrote {args.out} ({robots}, {request.formation})")
     return 0
 
 

@@ -19,6 +19,18 @@ def test_generate_writes_a_scenario_the_swarm_can_load(tmp_path: Path) -> None:
     assert scenario.name == "wedge-12"
 
 
+def test_the_leader_alone_runs_and_its_summary_lines_say_n_a_for_the_formation(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "one.yaml"
+    assert main(["scenario", "generate", "--robots", "1", "--out", str(out)]) == 0
+    assert f"wrote {out} (1 robot, wedge)" in capsys.readouterr().out
+    argv = ["sim", "--scenario", str(out), "--out", str(tmp_path / "run"), "--duration", "1"]
+    assert main([*argv, "--no-figures"]) == 0
+    compared = [line for line in capsys.readouterr().out.splitlines() if "fitness (16)" in line]
+    assert len(compared) == 2 and all(", formation n/a, " in line for line in compared), compared
+
+
 def test_equal_arguments_write_identical_files(tmp_path: Path) -> None:
     args = ["scenario", "generate", "--robots", "9", "--formation", "grid", "--trajectory",
             "lemniscate", "--obstacles", "2", "--seed", "4"]  # fmt: skip
