@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -82,7 +83,12 @@ def _load(path: Path | None, default_name: str) -> zenoh.Config:
     if path is not None:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: not a config file (no such file, or not a file)")
-        return zenoh.Config.from_file(str(path))
+        try:
+            return zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise SettingsError(
+                f"{path}: not a config Zenoh can read ({zenoh_error_text(exc)})"
+            ) from None
     source = CONFIG_DIR / default_name
     if source.exists():
         return zenoh.Config.from_file(str(source))
@@ -170,12 +176,30 @@ def open_client(
         return open_session(config)
 
 
+class SessionOpenError(zenoh.ZError):  # type: ignore[misc]  # final in the stubs only
+    """Zenoh could not open the session (no router let it in, and the config said not to wait
+    for one; a router that cannot listen); a zenoh.ZError still, for the callers that retry,
+    with Zenoh's message less its Rust source location."""
+
+
+RUST_SOURCE_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?\s*$")
+"""The ` at /root/.cargo/.../orchestrator.rs:447.` that ends Zenoh's error messages."""
+
+
+def zenoh_error_text(exc: BaseException) -> str:
+    """Zenoh's message for `exc` without the Rust source location it ends with."""
+    return RUST_SOURCE_LOCATION.sub("", str(exc))
+
+
 def open_session(config: zenoh.Config) -> zenoh.Session:
     """`zenoh.open`, with a $ZENOH_RUNTIME that Zenoh cannot read reported as the setting it
     is (SettingsError): Zenoh panics on one when its first session starts, a traceback from
-    Rust in every process of the swarm."""
+    Rust in every process of the swarm.  SessionOpenError when Zenoh gives up on the session:
+    a user's own $ZENOH_CONFIG may say not to wait for the router, as the project's does."""
     try:
         return zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise SessionOpenError(zenoh_error_text(exc)) from None
     except BaseException as exc:  # pyo3's PanicException derives from BaseException only
         if type(exc).__name__ != "PanicException" or ZENOH_RUNTIME_ENV not in os.environ:
             raise

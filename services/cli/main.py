@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 from pydantic import BaseModel
 
 from robot_firmware.net.keys import check_name
-from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
+from robot_firmware.net.session import DEFAULT_ENDPOINT, SessionOpenError, split_endpoints
 from services.launcher.orphans import end_with_the_launcher
 from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
@@ -1256,6 +1256,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, UsageError, TlsError, OutputFolderError, SettingsError) as exc:
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except SessionOpenError as exc:  # a process's own Zenoh config that does not wait
+        print(f"swarm {args.command}: cannot open its Zenoh session: {exc}", file=sys.stderr)
+        return 1
     except FileWriteError as exc:  # a full disk, a quota, a read-only file system
         print(f"swarm {args.command}: {exc}", file=sys.stderr)
         return EXIT_WRITE_FAILED

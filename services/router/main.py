@@ -19,6 +19,7 @@ from robot_firmware.net.session import (
     zenoh_runtime_while_opening,
 )
 from services.stop_signals import stop_on_signals, wait_for_stop
+from swarm_config.settings import SettingsError
 
 log = logging.getLogger("swarm.router")
 
@@ -29,7 +30,7 @@ def run_router(listen: Sequence[str] | None, config_file: Path | None) -> int:
     stop_on_signals(stop)
     try:
         config = router_config(listen, config_file)
-    except (zenoh.ZError, OSError) as exc:  # a user's file or endpoint: one line, no traceback
+    except (zenoh.ZError, OSError, SettingsError) as exc:  # a user's file or endpoint: one line
         log.error("cannot use the router config %s: %s", config_file or "(default)", exc)
         return 2
     try:

@@ -84,3 +84,40 @@ def test_a_runtime_setting_zenoh_cannot_read_is_one_line_naming_it(
         "read"
     ), refused.stderr
     assert "Traceback" not in refused.stderr
+
+
+PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
+
+
+@pytest.mark.parametrize("process", ["robot", "world"])
+def test_a_zenoh_config_of_the_users_own_that_fails_is_one_line(
+    process: str, tmp_path: Path
+) -> None:
+    # Before: a traceback from zenoh.Config.from_file for a file that is no Zenoh config, and
+    # from zenoh.open for a config that does not wait for the router.
+    files = write_credential_set(
+        tmp_path / "credentials", generate_credential_set("lab", ("robot1",))
+    )
+    not_waiting = tmp_path / "not-waiting.json5"
+    not_waiting.write_text('{mode: "client", connect: {timeout_ms: 0}}\n')
+    unreadable = tmp_path / "unreadable.json5"
+    unreadable.write_text("{bad\n")
+    identity = "robot1" if process == "robot" else "world"
+    argv = [sys.executable, "-m", "services.cli.main", process, "--scenario", str(PAPER)]
+    argv += ["--connect", "tcp/127.0.0.1:9", "--credentials", str(files[identity])]
+    argv += ["--name", "robot1"] if process == "robot" else ["--out", str(tmp_path / "run")]
+    for config, status, expected in (
+        (not_waiting, 1, f"swarm {process}: cannot open its Zenoh session: Unable to connect"),
+        (unreadable, 2, f"swarm {process}: {unreadable}: not a config Zenoh can read ("),
+    ):
+        ran = subprocess.run(
+            argv,
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=60,
+            env={**os.environ, "ZENOH_CONFIG": str(config)},
+        )
+        assert ran.returncode == status, ran.stderr
+        assert "Traceback" not in ran.stderr and ".rs:" not in ran.stderr, ran.stderr
+        assert ran.stderr.startswith(expected), ran.stderr
