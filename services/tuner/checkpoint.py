@@ -110,6 +110,38 @@ def load_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:
         ) from None
 
 
+def checkpoint_problem(checkpoint: RunCheckpoint, dim: int, budget: int) -> str | None:
+    """What makes a readable checkpoint unusable for a run over [0, 1]^`dim` with `budget`
+    evaluations, else None: arrays of other shapes, values that no run writes (outside the
+    unit cube, NaN), counters outside the budget.  The archive's own checks do not see a file
+    whose fields were changed one by one, and resuming from one crashed the tuner or wrote
+    results from nonsense."""
+    positions = checkpoint.positions
+    if positions.ndim != 2 or positions.shape[0] < 1 or positions.shape[1] != dim:
+        return f"positions: shape {positions.shape}, the run needs (population, {dim})"
+    count = positions.shape[0]
+    if not np.all((positions >= 0.0) & (positions <= 1.0)):
+        return "positions: values outside [0, 1] (or NaN)"
+    if checkpoint.costs.shape != (count,) or np.isnan(checkpoint.costs).any():
+        return f"costs: shape {checkpoint.costs.shape} or NaN, the run needs ({count},) numbers"
+    best_x = checkpoint.best_x
+    if best_x.shape != (dim,) or not np.all((best_x >= 0.0) & (best_x <= 1.0)):
+        return f"best_x: not {dim} values in [0, 1]"
+    if np.isnan(checkpoint.best_cost):
+        return "best_cost: NaN"
+    if not 0 <= checkpoint.n_evaluations <= budget:
+        return f"n_evaluations: {checkpoint.n_evaluations}, outside [0, {budget}]"
+    if checkpoint.generation < 0:
+        return f"generation: {checkpoint.generation}"
+    history = checkpoint.history_n_evaluations
+    if history.ndim != 1 or checkpoint.history_best_cost.shape != history.shape:
+        return "history: its two columns differ in length"
+    for name, values in checkpoint.auxiliary.items():
+        if values.shape not in ((count,), (count, dim)) or np.isnan(values).any():
+            return f"{name}: shape {values.shape} or NaN, the population has {count} members"
+    return None
+
+
 def _read_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:
     # Opened here, not by np.load, which leaves its file open when the archive is not one.
     with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:

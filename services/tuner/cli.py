@@ -54,6 +54,7 @@ from services.launcher.run_lock import (
 )
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.stop_signals import EXIT_INTERRUPTED
+from services.tuner.checkpoint import CheckpointDamagedError
 from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
 from services.tuner.evaluation import ProgressCallback, snr_fitness_from_cost
 from services.tuner.fitness import evaluate_fitness
@@ -86,6 +87,8 @@ then averages over 0-30 s: the approach from the starting poses, more than one l
 and one pass of the obstacle."""
 EXIT_CLUSTER_LOST = 1
 EXIT_WRITE_FAILED = 1
+EXIT_DAMAGED_CHECKPOINT = 2
+"""As for any other refused argument: the folder given to --resume holds no usable run."""
 
 
 class TuneArgumentError(ScenarioError, ValueError):
@@ -308,6 +311,10 @@ def _tune_and_report(
                 file=sys.stderr,
             )
             return EXIT_CLUSTER_LOST
+        except CheckpointDamagedError as exc:  # what only resuming it finds (its rng state)
+            progress.close()
+            print(f"swarm tune: {exc}", file=sys.stderr)
+            return EXIT_DAMAGED_CHECKPOINT
         except FileWriteError as exc:
             progress.close()
             print(

@@ -38,7 +38,7 @@ from typing import Protocol
 import numpy as np
 
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
-from services.tuner.checkpoint import load_checkpoint
+from services.tuner.checkpoint import CheckpointDamagedError, checkpoint_problem, load_checkpoint
 from services.tuner.evaluation import FloatArray, Objective, ProgressCallback
 from services.tuner.fitness import DEFAULT_COLLISION_PENALTY, evaluation_scenario, make_objective
 from services.tuner.fuzzy_encoding import DIMENSION, to_parameters
@@ -235,7 +235,14 @@ def prepare_run_dir(run_dir: Path, settings: TuningSettings, resume: bool) -> in
         raise ValueError(
             f"cannot resume {run_dir}: it was started with other settings: {', '.join(differing)}"
         )
-    return load_checkpoint(checkpoint).n_evaluations
+    loaded = load_checkpoint(checkpoint)
+    problem = checkpoint_problem(loaded, DIMENSION, settings.budget)
+    if problem is not None:
+        raise CheckpointDamagedError(
+            f"{checkpoint} is damaged ({problem}) and cannot be resumed: move it away to start "
+            "that run over"
+        )
+    return loaded.n_evaluations
 
 
 def tune_fuzzy_scheduler(

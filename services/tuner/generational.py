@@ -33,8 +33,10 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from services.tuner.checkpoint import (
+    CheckpointDamagedError,
     CheckpointMismatchError,
     RunCheckpoint,
+    checkpoint_problem,
     json_compatible,
     load_checkpoint,
     save_checkpoint,
@@ -220,7 +222,7 @@ class _Checkpointer:
 
 
 def _resume(
-    checkpoint_path: Path, fingerprint: str, rng: np.random.Generator
+    checkpoint_path: Path, fingerprint: str, dim: int, budget: int, rng: np.random.Generator
 ) -> tuple[_RunState, int]:
     checkpoint = load_checkpoint(checkpoint_path)
     if checkpoint.fingerprint != fingerprint:
@@ -228,7 +230,17 @@ def _resume(
             f"checkpoint {checkpoint_path} belongs to a different run: "
             f"{checkpoint.fingerprint} != {fingerprint}"
         )
-    rng.bit_generator.state = dict(checkpoint.rng_state)
+    problem = checkpoint_problem(checkpoint, dim, budget)
+    try:
+        if problem is None:
+            rng.bit_generator.state = dict(checkpoint.rng_state)
+    except (TypeError, ValueError, KeyError) as exc:  # numpy's refusal of a state not its own
+        problem = f"rng_state: {type(exc).__name__}"
+    if problem is not None:
+        raise CheckpointDamagedError(
+            f"{checkpoint_path} is damaged ({problem}) and cannot be resumed: move it away to "
+            "start that run over"
+        )
     progress = _RunState(
         generation=checkpoint.generation,
         population=Population(checkpoint.positions, checkpoint.costs, checkpoint.auxiliary),
@@ -273,7 +285,7 @@ def run_population_algorithm(
             progress(state.generation, evaluations.n_evaluations, state.best_cost)
 
     if path is not None and path.exists():
-        state, n_evaluations = _resume(path, checkpointer.fingerprint, rng)
+        state, n_evaluations = _resume(path, checkpointer.fingerprint, dim, budget, rng)
         checkpointer.saved_generation = state.generation
         evaluations = EvaluationBudget(objective, budget, n_evaluations)
     else:

@@ -105,6 +105,51 @@ def test_a_damaged_checkpoint_is_refused_as_damaged_and_nothing_runs(
         ALGORITHMS["ga"](must_not_run, 3, 300, 1, path)
 
 
+FIELD_DAMAGE = {
+    "positions of another dimension": ("positions", lambda a: a[:, :2], "positions: shape"),
+    "positions outside the cube": ("positions", lambda a: a + 5.0, "outside [0, 1]"),
+    "NaN costs": ("costs", lambda a: a * np.nan, "costs: shape"),
+    "best_x of another dimension": ("best_x", lambda a: a[:1], "best_x: not 3 values"),
+    "evaluations over the budget": ("n_evaluations", lambda a: a + 10**9, "n_evaluations: "),
+    "negative evaluations": ("n_evaluations", lambda a: a * 0 - 5, "n_evaluations: -5"),
+    "short history": ("history_best_cost", lambda a: a[:1], "history: its two columns"),
+    "velocities of another population": (
+        "auxiliary__velocities",
+        lambda a: a[:2],
+        "velocities: shape (2, 3)",
+    ),
+    "a state of another generator": (
+        "rng_state",
+        lambda a: np.array('{"bit_generator": "PCG64", "state": 5}'),
+        "rng_state:",
+    ),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(FIELD_DAMAGE))
+def test_a_checkpoint_whose_fields_were_changed_is_refused_naming_the_field(
+    tmp_path: Path, damage: str
+) -> None:
+    # Before, a readable archive was trusted field by field: a traceback deep in the resumed
+    # generation, or results written from values no run produces.
+    field, change, named = FIELD_DAMAGE[damage]
+    path = tmp_path / "pso.npz"
+    with pytest.raises(SimulatedKillError):
+        ALGORITHMS["pso"](rastrigin, 3, 600, 1, path, interrupt_at(4), checkpoint_every=2)
+    with np.load(path, allow_pickle=False) as archive:
+        fields = {key: archive[key] for key in archive.files}
+    fields[field] = change(fields[field])
+    with path.open("wb") as handle:
+        np.savez(handle, **fields)
+
+    def must_not_run(x: np.ndarray) -> np.ndarray:
+        raise AssertionError("a damaged checkpoint must not start a run")
+
+    with pytest.raises(CheckpointDamagedError, match=r"pso\.npz is damaged \(") as refused:
+        ALGORITHMS["pso"](must_not_run, 3, 600, 1, path)
+    assert named in str(refused.value), refused.value
+
+
 def test_failed_save_keeps_the_previous_checkpoint_and_leaves_no_temporary_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -272,3 +272,39 @@ def test_a_second_tune_in_the_folder_of_a_running_one_is_refused(tmp_path: Path)
         first.send_signal(signal.SIGINT)
         first.communicate(timeout=120)
     assert first.returncode == 130
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "named"),
+    [
+        ("positions", lambda a: a[:, :5], "positions: shape"),
+        ("rng_state", lambda a: np.array('{"bit_generator": "PCG64", "state": 1}'), "rng_state"),
+    ],
+)
+def test_resume_from_a_checkpoint_with_a_field_changed_is_one_line_and_status_2(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    field: str,
+    value: Callable[[Any], Any],
+    named: str,
+) -> None:
+    out = tmp_path / "tune"
+    assert run_tune(tune_args("--scenario", str(PAPER), "--out", str(out), *TINY)) == 0
+    checkpoint = out / "ofa" / "checkpoint.npz"
+    with np.load(checkpoint, allow_pickle=False) as archive:
+        fields = {key: archive[key] for key in archive.files}
+    fields[field] = value(fields[field])
+    with checkpoint.open("wb") as handle:
+        np.savez(handle, **fields)
+    best_before = (out / "best_fuzzy.yaml").read_bytes()
+    capsys.readouterr()
+    resume = tune_args("--scenario", str(PAPER), "--out", str(out), "--resume", *TINY)
+    try:
+        status = run_tune(resume)
+    except ValueError as exc:  # refused before the run: the swarm command prints it, status 2
+        status, said = 2, str(exc)
+    else:
+        said = capsys.readouterr().err
+    assert status == 2
+    assert f"{checkpoint} is damaged ({named}" in said, said
+    assert (out / "best_fuzzy.yaml").read_bytes() == best_before
