@@ -23,6 +23,7 @@ run's `events.jsonl`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
@@ -121,6 +122,13 @@ class PartitionFault(_NetworkFault):
 
     fault: Literal["partition"]
     robots: tuple[str, ...] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _each_robot_once(self) -> PartitionFault:
+        repeated = sorted({name for name in self.robots if self.robots.count(name) > 1})
+        if repeated:
+            raise ValueError(f"{repeated[0]!r} is named twice")
+        return self
 
 
 class HealFault(_NetworkFault):
@@ -275,6 +283,18 @@ FAULT_NAMES = (
     "clear_registers",
 )
 """Every fault's `fault` value, in the order of the union."""
+
+
+def swarm_fault_problem(fault: Fault, robots: Sequence[str]) -> str | None:
+    """What makes `fault` meaningless in a swarm of `robots` beyond naming one outside it
+    (which the callers refuse with their own reasons), else None: a partition of every robot
+    cuts nobody off from anybody."""
+    if isinstance(fault, PartitionFault) and set(robots) <= set(fault.robots):
+        return (
+            f"a partition of every robot ({', '.join(robots)}) cuts nobody off: name the robots "
+            "of one side"
+        )
+    return None
 
 
 def fault_subjects(fault: Fault) -> tuple[str, ...]:

@@ -40,7 +40,12 @@ from robot_firmware.control.trajectories import (
 )
 from swarm_config.atomic_files import write_file_atomically
 from swarm_config.body import BodyParams
-from swarm_config.faults import PROCESS_ROLES, ScheduledFault, fault_subjects
+from swarm_config.faults import (
+    PROCESS_ROLES,
+    ScheduledFault,
+    fault_subjects,
+    swarm_fault_problem,
+)
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
 from swarm_config.sensors import PositioningParams, SonarParams
@@ -244,6 +249,9 @@ class Scenario(_Strict):
             unknown = [s for s in fault_subjects(entry.fault) if s not in known]
             if unknown:
                 raise ValueError(f"faults[{k}] names {unknown[0]!r}, which is not in this swarm")
+            problem = swarm_fault_problem(entry.fault, names)
+            if problem is not None:
+                raise ValueError(f"faults[{k}]: {problem}")
             if entry.at_s > self.duration_s:
                 raise ValueError(f"faults[{k}] is at {entry.at_s} s, after the run ends")
         return self

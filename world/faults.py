@@ -83,6 +83,7 @@ from swarm_config.faults import (
     RunEvent,
     ScheduledFault,
     fault_subjects,
+    swarm_fault_problem,
 )
 from swarm_config.radio import LinkProfile
 from swarm_config.settings import describe_validation_error
@@ -522,6 +523,9 @@ def check_fault(fault: Fault, robots: Sequence[str]) -> AdminError | None:
             error=f"no robot {unknown[0]!r} in this swarm; robots: {', '.join(robots)}",
             reason=AdminRefusal.UNKNOWN_ROBOT,
         )
+    problem = swarm_fault_problem(fault, robots)
+    if problem is not None:
+        return AdminError(error=problem, reason=AdminRefusal.INVALID_REQUEST)
     return None
 
 

@@ -102,8 +102,8 @@ FAULT_HELP: dict[str, FaultHelp] = {
     ),
     "partition": FaultHelp(
         "cut robots off from the rest",
-        "Cut ROBOTS off from the rest: no frame crosses between the two sides until "
-        "`swarm fault heal`.",
+        "Cut ROBOTS (each named once, and not every robot of the swarm) off from the rest: no "
+        "frame crosses between the two sides until `swarm fault heal`.",
         "Each side goes on with what it hears. A side without the leader elects its own (the "
         "lowest-index live robot, one term higher); after the heal the higher term wins and the "
         "other leader steps down, so two leaders never both act once they hear each other.",

@@ -106,6 +106,19 @@ def test_a_key_written_twice_is_refused_naming_it_and_both_lines(tmp_path: Path)
         load_scenario(nested)
 
 
+def test_a_campaign_partition_of_every_robot_or_of_one_twice_is_refused() -> None:
+    data = _paper_data()
+    data["faults"] = [{"at_s": 1.0, "fault": {"fault": "partition", "robots": ["robot1"] * 2}}]
+    with pytest.raises(ScenarioError, match="'robot1' is named twice"):
+        parse_scenario(data)
+    every = ["robot1", "robot2", "robot3"]
+    data["faults"] = [{"at_s": 1.0, "fault": {"fault": "partition", "robots": every}}]
+    with pytest.raises(ScenarioError, match=r"faults\[0\]: a partition of every robot"):
+        parse_scenario(data)
+    data["faults"] = [{"at_s": 1.0, "fault": {"fault": "partition", "robots": every[:2]}}]
+    assert len(parse_scenario(data).faults) == 1
+
+
 def test_keys_a_merge_brings_in_are_overridden_not_repeated() -> None:
     data = parse_yaml("base: &b {x: 1, y: 2}\nover:\n  <<: *b\n  x: 5\n")
     assert data == {"base": {"x": 1, "y": 2}, "over": {"x": 5, "y": 2}}

@@ -457,6 +457,9 @@ OK = b'{"ok": true}'
         (_body(fault="partition", robots=["robot1", "ghost"]), AdminRefusal.UNKNOWN_ROBOT),
         (_body(fault="fix_cut", robot="robot4"), AdminRefusal.UNKNOWN_ROBOT),
         (_body(fault="kill", process="robot4"), AdminRefusal.UNKNOWN_PROCESS),
+        # Before, both were taken: a robot named twice, and a partition that cuts nobody off.
+        (_body(fault="partition", robots=["robot1", "robot1"]), AdminRefusal.INVALID_REQUEST),
+        (_body(fault="partition", robots=list(NAMES)), AdminRefusal.INVALID_REQUEST),
     ],
 )
 def test_a_bad_fault_is_refused_with_its_reason_recorded_and_changes_nothing(
