@@ -74,7 +74,11 @@ from robot_firmware.net.messages import (
     refusal_of,
 )
 from robot_firmware.net.radio_bundle import FRAME_RING, split_bundle
-from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
+from robot_firmware.net.session import (
+    DEFAULT_ENDPOINT,
+    open_client_until_stopped,
+    split_endpoints,
+)
 from robot_firmware.net.wire import (
     ActMessage,
     WireCounters,
@@ -223,7 +227,13 @@ class RobotProcess:
 
     def run(self) -> int:
         cfg = self.config
-        with open_client(cfg.connect, cfg.zenoh_config, cfg.credentials) as session:
+        session = open_client_until_stopped(
+            self.stop, cfg.connect, cfg.zenoh_config, cfg.credentials
+        )
+        if session is None:
+            log.info("stopped before a router let %s in", cfg.name)
+            return 0
+        with session:
             name = cfg.name
             session.declare_subscriber(self.keys.sense(name), self._on_sense)
             frame_ring = session.declare_subscriber(

@@ -117,7 +117,11 @@ from robot_firmware.net.messages import (
     parse_message,
 )
 from robot_firmware.net.radio_bundle import bundle_frames
-from robot_firmware.net.session import DEFAULT_ENDPOINT, open_client, split_endpoints
+from robot_firmware.net.session import (
+    DEFAULT_ENDPOINT,
+    open_client_until_stopped,
+    split_endpoints,
+)
 from robot_firmware.net.wire import (
     ActMessage,
     ClockMessage,
@@ -966,7 +970,13 @@ class WorldProcess:
         started_s = time.monotonic()
         self.engine.compile_kernels()
         log.debug("world kernels ready in %.1f s", time.monotonic() - started_s)
-        with open_client(cfg.connect, cfg.zenoh_config, cfg.credentials) as session:
+        session = open_client_until_stopped(
+            self.stop, cfg.connect, cfg.zenoh_config, cfg.credentials
+        )
+        if session is None:
+            log.info("stopped before a router let the world in: nothing ran")
+            return 0
+        with session:
             keys = self.keys
             session.declare_subscriber(keys.act_all, self._on_act)
             frame_subscriber = session.declare_subscriber(keys.radio_tx_all, self._on_frame)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -174,6 +175,36 @@ def open_client(
         )
     with zenoh_runtime_while_opening(CLIENT_ZENOH_RUNTIME):
         return open_session(config)
+
+
+STOPPABLE_WAIT_POLL_S = 0.5
+"""How long one attempt of `open_client_until_stopped` waits for the router before it looks
+at its stop event again: the longest a Ctrl-C waits while no router lets the process in."""
+
+
+def open_client_until_stopped(
+    stop: threading.Event,
+    connect: Sequence[str],
+    config_file: Path | None = None,
+    credentials: ProcessCredentials | None = None,
+) -> zenoh.Session | None:
+    """`open_client` for a process that waits for its router (a robot, the world), given up
+    when `stop` is set first (None).  zenoh.open waits in Rust, deaf to the signal handlers
+    that set `stop`: a robot started before its router, or with a wrong endpoint, ignored
+    Ctrl-C and SIGTERM until a router came.  So the wait is cut into attempts of
+    `STOPPABLE_WAIT_POLL_S`.  A config that does not wait for the router (a user's
+    $ZENOH_CONFIG without `connect/timeout_ms: -1`) is tried once, as it says."""
+    waits_for_ever = _load(config_file, "client.json5").get_json("connect/timeout_ms") == "-1"
+    if not waits_for_ever:
+        return open_client(connect, config_file, credentials)
+    while not stop.is_set():
+        try:
+            return open_client(
+                connect, config_file, credentials, connect_timeout_s=STOPPABLE_WAIT_POLL_S
+            )
+        except SessionOpenError:
+            continue
+    return None
 
 
 class SessionOpenError(zenoh.ZError):  # type: ignore[misc]  # final in the stubs only

@@ -132,3 +132,49 @@ def test_a_router_ends_on_a_sigterm_that_lands_on_one_of_zenohs_threads() -> Non
             assert router.wait(timeout=30) == 0
         finally:
             router.kill()
+
+
+@pytest.mark.parametrize(
+    ("process", "sig"),
+    [("robot", signal.SIGINT), ("robot", signal.SIGTERM), ("world", signal.SIGINT)],
+)
+def test_a_process_waiting_for_its_router_stops_on_a_signal(
+    process: str, sig: signal.Signals, tmp_path: Path
+) -> None:
+    # Before, zenoh.open waited for the router in Rust, deaf to the handlers: a robot or world
+    # started before its router, or with a wrong endpoint, ignored Ctrl-C and SIGTERM.
+    from swarm_config.credentials import generate_credential_set, write_credential_set
+
+    files = write_credential_set(
+        tmp_path / "credentials", generate_credential_set("lab", ("robot1",))
+    )
+    with socket.socket() as unused:  # a port where no router listens
+        unused.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{unused.getsockname()[1]}"
+    argv = [sys.executable, "-m", "services.cli.main", process, "--connect", endpoint]
+    argv += ["--scenario", str(ROOT / "configs" / "scenarios" / "paper.yaml")]
+    if process == "robot":
+        argv += ["--name", "robot1", "--credentials", str(files["robot1"])]
+    else:
+        argv += ["--out", str(tmp_path / "run"), "--credentials", str(files["world"])]
+    child = subprocess.Popen(
+        argv,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        # It waits once its log says nothing more for a while; give it time to get there.
+        with pytest.raises(subprocess.TimeoutExpired):
+            child.wait(timeout=8)
+        child.send_signal(sig)
+        output, _ = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 0, output
+    assert "stopped before a router let" in output, output
+    assert "Traceback" not in output
