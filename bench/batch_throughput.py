@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from arguments import positive_float, positive_int  # noqa: E402
 from machine import machine_lines  # noqa: E402
 
 from services.sim.batch import BatchResult, run_batch  # noqa: E402
@@ -50,19 +51,17 @@ def _seconds(path: str, scenario: Scenario, batch: int, sim_s: float) -> tuple[f
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--sim-seconds", type=float, default=5.0)
+    parser.add_argument("--repeats", type=positive_int, default=3)
+    parser.add_argument("--sim-seconds", type=positive_float, default=5.0)
     parser.add_argument("--scenario", type=Path, default=ROOT / "configs/scenarios/paper.yaml")
-    parser.add_argument("--batches", type=int, nargs="+", default=[1, 100, 1000])
+    parser.add_argument("--batches", type=positive_int, nargs="+", default=[1, 100, 1000])
     parser.add_argument(
         "--oracle-sim-seconds",
-        type=float,
+        type=positive_float,
         default=None,
         help="simulated seconds of the oracle's runs (default: --sim-seconds)",
     )
     args = parser.parse_args()
-    if args.repeats < 1 or args.sim_seconds <= 0.0 or any(b < 1 for b in args.batches):
-        parser.error("--repeats, --sim-seconds and every batch size must be positive")
     scenario = load_scenario(args.scenario)
     robots = len(scenario.robots)
     sim_s = {

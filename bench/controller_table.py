@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from arguments import non_negative_int, positive_float, positive_int
 from machine import machine_lines, machine_record
 
 from robot_firmware.control.fuzzy import FuzzyRuleBase
@@ -130,11 +131,15 @@ def main() -> None:
         nargs="+",
         default=[ROOT / "configs/scenarios/paper.yaml", ROOT / "configs/scenarios/lemniscate.yaml"],
     )
-    parser.add_argument("--noise-seeds", type=int, default=3)
+    parser.add_argument("--noise-seeds", type=positive_int, default=3)
     parser.add_argument("--tune-scenario", type=Path, default=ROOT / "configs/scenarios/paper.yaml")
-    parser.add_argument("--budget", type=int, default=400, help="OFA evaluations when tuning")
-    parser.add_argument("--duration", type=float, default=30.0, help="s per tuning evaluation")
-    parser.add_argument("--seed", type=int, default=0, help="OFA seed when tuning")
+    parser.add_argument(
+        "--budget", type=positive_int, default=400, help="OFA evaluations when tuning"
+    )
+    parser.add_argument(
+        "--duration", type=positive_float, default=30.0, help="s per tuning evaluation"
+    )
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="OFA seed when tuning")
     parser.add_argument("--json", type=Path, dest="json_path", help="also write the figures here")
     args = parser.parse_args()
     if args.noise_seeds < 1:

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from arguments import positive_int
 from machine import machine_lines
 from oracle_paths import PATHS, control_path
 
@@ -241,8 +242,8 @@ def _measure(ticks: int, path: str) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ticks", type=int, default=1000)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--ticks", type=positive_int, default=1000)
+    parser.add_argument("--repeats", type=positive_int, default=3)
     args = parser.parse_args()
     rows: dict[str, list[dict[str, float]]] = {path: [] for path in PATHS}
     register_rows: dict[str, list[dict[str, float]]] = {mode: [] for mode in REGISTER_MODES}

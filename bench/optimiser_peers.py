@@ -33,6 +33,7 @@ from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
+from arguments import positive_int
 from machine import machine_lines
 from scipy.stats import rankdata
 
@@ -99,9 +100,9 @@ def pyswarms_global_best(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--evaluations-per-dim", type=int, default=500)
-    parser.add_argument("--dims", type=int, nargs="+", default=[10, 30])
+    parser.add_argument("--seeds", type=positive_int, default=5)
+    parser.add_argument("--evaluations-per-dim", type=positive_int, default=500)
+    parser.add_argument("--dims", type=positive_int, nargs="+", default=[10, 30])
     parser.add_argument(
         "--functions", nargs="+", default=list(BENCHMARK_FUNCTIONS), choices=BENCHMARK_FUNCTIONS
     )

@@ -46,6 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from arguments import positive_int  # noqa: E402
 from machine import machine_lines  # noqa: E402
 
 os.environ.setdefault("SWARM_NATIVE", "mypyc")  # as `swarm up` starts a robot
@@ -215,9 +216,13 @@ def run(robots: int, periods: int, cold: bool, work: Path) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--robots", type=int, default=12, help="robots in the wedge (default 12)")
-    parser.add_argument("--periods", type=int, default=1500, help="measured periods (1500)")
-    parser.add_argument("--repeats", type=int, default=3, help="runs per condition (3)")
+    parser.add_argument(
+        "--robots", type=positive_int, default=12, help="robots in the wedge (default 12)"
+    )
+    parser.add_argument(
+        "--periods", type=positive_int, default=1500, help="measured periods (1500)"
+    )
+    parser.add_argument("--repeats", type=positive_int, default=3, help="runs per condition (3)")
     args = parser.parse_args(argv)
     results: dict[str, list[dict[str, float]]] = {"warm": [], "cold": []}
     with tempfile.TemporaryDirectory(prefix="robot-period-") as tmp:

@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from arguments import positive_float, positive_int
 from machine import machine_lines
 from swarm_up import SwarmUp
 
@@ -109,9 +110,14 @@ def table(role: str, records: list[dict[str, Any]]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--robots", type=int, default=6, help="robots in the wedge (default 6)")
     parser.add_argument(
-        "--duration", type=float, default=30.0, help="measured seconds after warm-up (default 30)"
+        "--robots", type=positive_int, default=6, help="robots in the wedge (default 6)"
+    )
+    parser.add_argument(
+        "--duration",
+        type=positive_float,
+        default=30.0,
+        help="measured seconds after warm-up (default 30)",
     )
     parser.add_argument("--keep", type=Path, help="keep the run's files in this new directory")
     parser.add_argument(

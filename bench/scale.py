@@ -42,6 +42,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from arguments import non_negative_int, positive_float, positive_int
 from machine import machine_lines
 from proc_stats import CpuWindow, memory_mib
 from swarm_up import SwarmUp
@@ -303,14 +304,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--sizes", type=_sizes, default=list(DEFAULT_SIZES), help="robot counts, e.g. 3,6,12"
     )
     parser.add_argument(
-        "--duration", type=float, default=30.0, help="measured seconds per run (default: 30)"
+        "--duration",
+        type=positive_float,
+        default=30.0,
+        help="measured seconds per run (default: 30)",
     )
     parser.add_argument(
         "--repeats",
-        type=int,
+        type=positive_int,
         help=f"runs per size (default: 3 up to {CHEAP_SIZE} robots, 1 above)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="the generated scenarios' seed")
+    parser.add_argument(
+        "--seed", type=non_negative_int, default=0, help="the generated scenarios' seed"
+    )
     parser.add_argument("--json", metavar="FILE", help="also write every run's figures here")
     parser.add_argument(
         "--keep", metavar="DIR", help="keep each run's scenario, logs and summary.json in DIR"

@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from arguments import non_negative_int, positive_float
 from machine import machine_lines, machine_record
 from proc_stats import rss_mib
 from swarm_up import OPERATOR_CREDENTIALS, SwarmUp
@@ -389,15 +390,18 @@ def collisions_by_episode(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--minutes", type=float, default=30.0)
-    parser.add_argument("--every-s", type=float, default=30.0, help="one episode per this")
-    parser.add_argument("--hold-s", type=float, default=8.0, help="fault held this long")
+    parser.add_argument("--minutes", type=positive_float, default=30.0)
+    parser.add_argument("--every-s", type=positive_float, default=30.0, help="one episode per this")
+    parser.add_argument("--hold-s", type=positive_float, default=8.0, help="fault held this long")
     parser.add_argument(
-        "--warmup-s", type=float, default=20.0, help="formation time before the first episode"
+        "--warmup-s",
+        type=positive_float,
+        default=20.0,
+        help="formation time before the first episode",
     )
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--poll-s", type=float, default=0.5)
-    parser.add_argument("--rss-every-s", type=float, default=10.0)
+    parser.add_argument("--seed", type=non_negative_int, default=1)
+    parser.add_argument("--poll-s", type=positive_float, default=0.5)
+    parser.add_argument("--rss-every-s", type=positive_float, default=10.0)
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "soak")
     args = parser.parse_args(argv)
     if args.hold_s >= args.every_s:

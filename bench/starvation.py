@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from arguments import positive_float, positive_int
 from machine import machine_lines
 from swarm_up import SwarmUp
 
@@ -274,8 +275,8 @@ def print_table(runs: list[Run], hogs: int, kind: str, duration_s: float) -> Non
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=3, help="runs per setting (default 3)")
-    parser.add_argument("--hogs", type=int, default=4, help="hog processes (default 4)")
+    parser.add_argument("--runs", type=positive_int, default=3, help="runs per setting (default 3)")
+    parser.add_argument("--hogs", type=positive_int, default=4, help="hog processes (default 4)")
     parser.add_argument(
         "--hog",
         choices=[*sorted(HOG_CODE), "swarm"],
@@ -283,7 +284,7 @@ def main() -> int:
         help="busy: spin for ever (default); bursty: spin 4 ms, sleep 1 ms; swarm: a whole "
         "second real-time swarm (router, world, 3 robots) per hog",
     )
-    parser.add_argument("--duration", type=float, default=60.0, help="simulated s per run")
+    parser.add_argument("--duration", type=positive_float, default=60.0, help="simulated s per run")
     parser.add_argument(
         "--guard",
         choices=("both", "on", "off"),

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from arguments import positive_int
 from machine import machine_lines
 from proc_stats import CpuWindow
 from swarm_up import SwarmUp, start_router
@@ -359,8 +360,8 @@ def wake_table(samples: int, runs: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--runs", type=positive_int, default=3)
+    parser.add_argument("--samples", type=positive_int, default=500)
     parser.add_argument("--only", choices=("lockstep", "realtime", "hop", "wake"), default=None)
     args = parser.parse_args()
     print("# networked swarm runtime")

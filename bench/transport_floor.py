@@ -53,6 +53,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from arguments import positive_float, positive_int
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
@@ -428,8 +430,10 @@ def main(argv: list[str] | None = None) -> int:
         default=",".join(map(str, DEFAULT_SIZES)),
         help="robot counts, comma-separated (default 3,12,24,30)",
     )
-    parser.add_argument("--duration", type=float, default=20.0, help="measured seconds (20)")
-    parser.add_argument("--repeats", type=int, default=3, help="runs per size, median (3)")
+    parser.add_argument(
+        "--duration", type=positive_float, default=20.0, help="measured seconds (20)"
+    )
+    parser.add_argument("--repeats", type=positive_int, default=3, help="runs per size, median (3)")
     parser.add_argument(
         "--no-swarm",
         dest="swarm",
@@ -461,8 +465,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--sizes: comma-separated whole numbers, not {args.sizes!r}")
     if not sizes or min(sizes) < 2:
         parser.error("--sizes: at least one size, each of 2 robots or more")
-    if args.repeats < 1 or args.duration <= 0:
-        parser.error("--repeats must be at least 1 and --duration positive")
 
     from machine import machine_lines
     from scale import run_once

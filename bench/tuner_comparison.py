@@ -49,6 +49,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from arguments import positive_float, positive_int
 from machine import machine_lines, machine_record
 from scipy.stats import wilcoxon
 
@@ -231,10 +232,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", type=Path, default=ROOT / "configs/scenarios/paper.yaml")
     parser.add_argument("--algos", default="ofa,fa,ga,pso,random")
-    parser.add_argument("--seeds", type=int, default=10, help="optimiser seeds 0..N-1")
-    parser.add_argument("--budget", type=int, default=600, help="evaluations per run")
-    parser.add_argument("--duration", type=float, default=30.0, help="simulated s per evaluation")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--seeds", type=positive_int, default=10, help="optimiser seeds 0..N-1")
+    parser.add_argument("--budget", type=positive_int, default=600, help="evaluations per run")
+    parser.add_argument(
+        "--duration", type=positive_float, default=30.0, help="simulated s per evaluation"
+    )
+    parser.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1)
     parser.add_argument(
         "--json", type=Path, default=ROOT / "runs/bench/tuner_comparison.json", dest="json_path"
     )
