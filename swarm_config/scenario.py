@@ -48,7 +48,7 @@ from swarm_config.faults import (
 )
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
-from swarm_config.sensors import PositioningParams, SonarParams
+from swarm_config.sensors import POSITIONING_RANGE_M, PositioningParams, SonarParams
 from swarm_config.settings import (
     DEFAULT_SCENARIO_PATH as DEFAULT_SCENARIO_PATH,  # re-exported: importers know it from here
 )
@@ -79,6 +79,10 @@ class CircleSpec(_Strict):
     phase_deg: float = 0.0
     heading_deg: float = 90.0
 
+    def reach_m(self) -> float:
+        """The largest |x| or |y| the reference reaches."""
+        return max(abs(c) for c in self.centre_m) + self.radius_m
+
     def build(self) -> Trajectory:
         return CircleTrajectory(
             radius_m=self.radius_m,
@@ -96,6 +100,10 @@ class LemniscateSpec(_Strict):
     centre_m: tuple[float, float] = (0.0, 0.0)
     heading_deg: float = 90.0
 
+    def reach_m(self) -> float:
+        """The largest |x| or |y| the reference reaches (at most the amplitude off centre)."""
+        return max(abs(c) for c in self.centre_m) + self.amplitude_m
+
     def build(self) -> Trajectory:
         return LemniscateTrajectory(
             amplitude_m=self.amplitude_m,
@@ -111,6 +119,10 @@ class PolylineSpec(_Strict):
     speed_mps: PositiveFloat = 0.3
     closed: bool = True
     heading_deg: float = 90.0
+
+    def reach_m(self) -> float:
+        """The largest |x| or |y| the reference reaches: a corner's."""
+        return max(max(abs(x), abs(y)) for x, y in self.waypoints_m)
 
     def build(self) -> Trajectory:
         try:
@@ -230,6 +242,7 @@ class Scenario(_Strict):
                 gap = math.hypot(a.x_m - obstacle.position_m[0], a.y_m - obstacle.position_m[1])
                 if gap < radius + obstacle.radius_m:
                     raise ValueError(f"robot {names[i]} starts inside obstacle {k}")
+        self._inside_the_positioning_range()
         control_rate_hz = 1.0 / self.controller.control_period_s
         if self.radio.broadcast_rate_hz > control_rate_hz:
             raise ValueError(
@@ -255,6 +268,27 @@ class Scenario(_Strict):
             if entry.at_s > self.duration_s:
                 raise ValueError(f"faults[{k}] is at {entry.at_s} s, after the run ends")
         return self
+
+    def _inside_the_positioning_range(self) -> None:
+        """Every start, obstacle and slot along the reference path within the positioning
+        receiver's range (`POSITIONING_RANGE_M` per axis); ValueError naming the first one
+        beyond it."""
+        limit = POSITIONING_RANGE_M
+        beyond = f"beyond the positioning receiver's range (|x|, |y| <= {limit:.0f} m)"
+        for robot, name in zip(self.robots, self.robot_names, strict=True):
+            pose = robot.initial_pose
+            if max(abs(pose.x_m), abs(pose.y_m)) > limit:
+                raise ValueError(f"robot {name} starts at ({pose.x_m:g}, {pose.y_m:g}) m, {beyond}")
+        for k, obstacle in enumerate(self.obstacles):
+            reach = max(abs(c) for c in obstacle.position_m) + obstacle.radius_m
+            if reach > limit:
+                raise ValueError(f"obstacle {k} reaches {reach:g} m, {beyond}")
+        slots = [r.slot.distance_m for r in self.robots if r.slot is not None]
+        reach = self.trajectory.reach_m() + max(slots, default=0.0)
+        if reach > limit:
+            raise ValueError(
+                f"the trajectory, with the farthest slot around it, reaches {reach:g} m, {beyond}"
+            )
 
     @property
     def robot_names(self) -> tuple[str, ...]:

@@ -21,6 +21,13 @@ class SonarParams(BaseModel):
     rate_hz: PositiveFloat = 20.0
 
 
+POSITIONING_RANGE_M = (2**31 - 1) / 1_000_000
+"""The largest coordinate, per axis, that the positioning receiver's fix can hold: X_UM and
+Y_UM are signed 32-bit micrometres and saturate beyond it (robot_firmware/fpga/positioning.py).
+A scenario keeps its robots, obstacles and reference path inside; beyond it every robot would
+localise at the edge while the batch simulator, which reads no register, ran on."""
+
+
 class PositioningParams(BaseModel):
     """The indoor positioning receiver: fix noise and rate (DESIGN.md §4)."""
 

@@ -91,3 +91,15 @@ def test_huge_finite_fix_saturates_instead_of_overflowing() -> None:
 
     assert _saturate_int32(1e300 * 1e6) == 2**31 - 1
     assert _saturate_int32(-1e300 * 1e6) == -(2**31)
+
+
+def test_the_scenarios_positioning_range_is_where_the_fix_saturates() -> None:
+    """swarm_config's POSITIONING_RANGE_M, the bound of every scenario, is this IP's."""
+    from swarm_config.sensors import POSITIONING_RANGE_M
+
+    fabric = Fabric()
+    deliver(fabric, PositionFix(POSITIONING_RANGE_M, -POSITIONING_RANGE_M, 0.0, stamp_ns=1))
+    inside = pose(fabric)[:2]
+    assert inside == (2**31 - 1, -(2**31 - 1))
+    deliver(fabric, PositionFix(POSITIONING_RANGE_M - 1e-3, 0.0, 0.0, stamp_ns=2))
+    assert pose(fabric)[0] == 2**31 - 1 - 1000  # a millimetre inside is not saturated

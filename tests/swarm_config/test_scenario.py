@@ -1,4 +1,5 @@
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -74,6 +75,28 @@ def test_structural_problems_are_explained() -> None:
         parse_scenario(data)
     with pytest.raises(ScenarioError, match="mapping"):
         parse_scenario(["not", "a", "mapping"])
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        (lambda d: d["robots"][0]["initial_pose"].update(x_m=1e300), "robot robot1 starts at"),
+        (lambda d: d["obstacles"][0].update(position_m=[2147.4, 0.0]), "obstacle 0 reaches"),
+        (lambda d: d["trajectory"].update(radius_m=1e6), "the trajectory, with the farthest"),
+        (lambda d: d["trajectory"].update(centre_m=[2146.0, 0.0]), "the trajectory, with the"),
+        (lambda d: d["robots"][1]["slot"].update(distance_m=3000.0), "the trajectory, with the"),
+    ],
+)
+def test_a_scenario_beyond_the_positioning_receivers_range_is_refused(
+    change: Callable[[dict], None], named: str
+) -> None:
+    # Before, it ran: the batch simulator on the far coordinates, every robot's firmware on a
+    # fix saturated at 2147 m.
+    data = _paper_data()
+    change(data)
+    with pytest.raises(ScenarioError, match="beyond the positioning receiver's range") as refused:
+        parse_scenario(data)
+    assert named in str(refused.value), refused.value
 
 
 def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
