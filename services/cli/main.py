@@ -538,10 +538,43 @@ def _ask(args: argparse.Namespace, target: str, verb: str, body: BaseModel | byt
 
 
 def _no_answer(args: argparse.Namespace, target: str) -> UsageError:
-    return UsageError(
-        f"no answer from {target} of swarm {_swarm(args)!r} at {_endpoints(args.connect)[0]} "
-        f"(is it running? start one with `swarm up`)"
+    """The error for a process that gave no answer, saying why when the launcher knows (it is
+    down, stopped or exited), else suggesting that no swarm runs there."""
+    where = f"no answer from {target} of swarm {_swarm(args)!r} at {_endpoints(args.connect)[0]}"
+    why = None if target == "launcher" else _why_no_answer(args, target)
+    return UsageError(f"{where} ({why or 'is it running? start one with `swarm up`'})")
+
+
+LAUNCHER_ASKED_WHY_TIMEOUT_S = 1.0
+"""How long a command that got no answer from a process asks the launcher about it."""
+
+
+def _why_no_answer(args: argparse.Namespace, target: str) -> str | None:
+    """What the launcher's status says of `target`, when it answers and knows it: down until
+    restarted, stopped, exited by itself, running yet silent, or not among its processes.
+    None when no launcher answers (under compose)."""
+    from robot_firmware.net.messages import LauncherStatusReply, parse_reply
+
+    quick = argparse.Namespace(
+        **{**vars(args), "timeout": min(args.timeout, LAUNCHER_ASKED_WHY_TIMEOUT_S)}
     )
+    payload = _ask_if_answered(quick, "launcher", "status", None)
+    status = None if payload is None else parse_reply(LauncherStatusReply, payload)
+    if not isinstance(status, LauncherStatusReply):
+        return None
+    if target not in status.processes:  # a typo, or one run by another host's launcher
+        return f"the launcher that answered runs no {target!r}: {', '.join(status.processes)}"
+    process = status.processes[target]
+    if process.stopped:
+        return f"it is stopped: `swarm fault cont {target}` continues it"
+    if process.killed and not process.running:
+        return f"it was killed and stays down: `swarm restart {target}` starts it again"
+    if not process.running:
+        return (
+            f"it exited by itself (status {process.exit_code}): see {process.log}; "
+            f"`swarm restart {target}` starts it again"
+        )
+    return f"it runs (pid {process.pid}) but did not answer in time; see {process.log}"
 
 
 def _ask_if_answered(

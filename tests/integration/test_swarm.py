@@ -594,6 +594,12 @@ def test_killed_robot_leaves_and_a_restarted_one_comes_back(live_swarm: LiveSwar
     assert processes["robot1"]["running"] and processes["robot3"]["running"]
     # Its liveliness token goes with the process: the world counts it out.
     live_swarm.wait_for(lambda: _left_the_world(live_swarm, "robot2"))
+    # A question to it says why nobody answers (before: "is it running? start one with
+    # `swarm up`", with the swarm running).
+    silent = live_swarm.cli("status", "robot2", "--timeout", "1")
+    assert silent.returncode == 2, silent.stderr
+    assert "it was killed and stays down: `swarm restart robot2`" in silent.stderr
+    assert "start one with" not in silent.stderr
     restarted = live_swarm.admin("restart", "robot2")
     assert restarted["ok"] and restarted["restarted"] == "robot2"
     live_swarm.wait_for(lambda: _launcher_status(live_swarm)["processes"]["robot2"]["running"])
