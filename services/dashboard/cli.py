@@ -17,7 +17,12 @@ from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from robot_firmware.net.session import DEFAULT_ENDPOINT, split_endpoints
-from services.dashboard.viewer_options import browser_host_argument, server_memory_limit_argument
+from services.dashboard.viewer_options import (
+    browser_host_argument,
+    default_listen_address,
+    listen_address_argument,
+    server_memory_limit_argument,
+)
 from services.launcher.run_lock import (
     DASHBOARD_LOCK_FILE_NAME,
     RunDirectoryBusyError,
@@ -70,6 +75,7 @@ def run_dashboard(args: argparse.Namespace) -> int:
         "grpc_port": args.grpc_port,
         "out_dir": args.out,
         "server_memory_limit": args.memory_limit,
+        "bind": args.bind,
     }
     with ExitStack() as held:  # the recording folder's lock, until this function returns
         try:
@@ -148,7 +154,8 @@ def run_replay(args: argparse.Namespace) -> int:
     except OSError as exc:
         return _usage_error("replay", f"cannot serve the viewer: {exc.strerror or exc}")
     limit = args.memory_limit or server_memory_limit_for(recording)
-    command = replay_command(recording, args.web_port, args.grpc_port, limit)
+    bind = args.bind if args.bind is not None else default_listen_address(args.host)
+    command = replay_command(recording, args.web_port, args.grpc_port, limit, bind)
     stop = threading.Event()
     print(f"replaying {recording}")
     print(f"open {viewer_url(args.host, args.web_port, args.grpc_port)}", flush=True)
@@ -181,6 +188,14 @@ def _viewer_options(parser: argparse.ArgumentParser, with_defaults: bool = True)
         default=default("127.0.0.1"),
         help="this machine's name or address as the browser reaches it, used in the printed "
         "URL (default: 127.0.0.1); both ports must be reachable from the browser",
+    )
+    parser.add_argument(
+        "--bind",
+        type=listen_address_argument,
+        metavar="ADDR",
+        help="the address the data (gRPC) server listens on (default: 127.0.0.1 when --host "
+        "is this machine, so nothing from elsewhere reads the swarm; 0.0.0.0, every "
+        "interface, for any other --host)",
     )
 
 

@@ -59,7 +59,13 @@ from services.dashboard import entities
 from services.dashboard.blueprint import default_blueprint
 from services.dashboard.recording_file import trim_partial_message
 from services.dashboard.scene import SwarmScene, Update
-from services.dashboard.viewer_options import browser_host, server_memory_limit
+from services.dashboard.viewer_options import (
+    LOOPBACK_HOSTS,
+    browser_host,
+    default_listen_address,
+    listen_address,
+    server_memory_limit,
+)
 from services.listen_ports import check_port_free
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
@@ -77,8 +83,6 @@ APPLICATION_ID = "swarm-cps"
 RECORDING_FILE = "dashboard.rrd"
 EVENTS_FILE = "events.jsonl"
 """The world's record of the run's events, one `RunEvent` JSON per line, in the run directory."""
-LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "[::1]"})
-"""Hosts as `browser_host` writes them that need no CORS origin."""
 
 
 class DashboardConfig(LayeredSettings):
@@ -93,6 +97,9 @@ class DashboardConfig(LayeredSettings):
     zenoh_config: FilePath | None = None
     host: str = Field(default="127.0.0.1", min_length=1)
     """Host name or address of this machine as the browser reaches it (printed in the URL)."""
+    bind: str | None = None
+    """The address the gRPC data server listens on; None: the loopback address when `host` is
+    this machine, else every interface (viewer_options.default_listen_address)."""
     web_port: int = Field(default=9090, ge=1, le=65535)
     grpc_port: int = Field(default=9876, ge=1, le=65535)
     out_dir: Path | None = None
@@ -125,6 +132,16 @@ class DashboardConfig(LayeredSettings):
     @classmethod
     def _browser_host(cls, value: str) -> str:
         return browser_host(value)
+
+    @field_validator("bind")
+    @classmethod
+    def _listen_address(cls, value: str | None) -> str | None:
+        return None if value is None else listen_address(value)
+
+    @property
+    def bind_address(self) -> str:
+        """Where the data server listens (`bind`, or its default for `host`)."""
+        return self.bind if self.bind is not None else default_listen_address(self.host)
 
     @field_validator("server_memory_limit")
     @classmethod
@@ -296,9 +313,10 @@ class DashboardService:
             recording_id=uuid.uuid4(),
             batcher_config=rr.ChunkBatcherConfig(flush_tick=cfg.flush_period_s),
         )
-        cors = None if cfg.host in LOCAL_HOSTS else [f"http://{cfg.host}:{cfg.web_port}"]
+        cors = None if cfg.host in LOOPBACK_HOSTS else [f"http://{cfg.host}:{cfg.web_port}"]
         sinks: list[rr.GrpcServerSink | rr.FileSink] = [
             rr.GrpcServerSink(
+                bind_ip=cfg.bind_address,
                 port=cfg.grpc_port,
                 server_memory_limit=cfg.server_memory_limit,
                 cors_allow_origin=cors,

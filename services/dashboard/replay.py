@@ -44,12 +44,15 @@ def rerun_executable() -> Path:
 
 
 def replay_command(
-    recording: Path, web_port: int, grpc_port: int, server_memory_limit: str
+    recording: Path, web_port: int, grpc_port: int, server_memory_limit: str, bind: str
 ) -> list[str]:
+    """Rerun's server for `recording`, its web viewer and data server listening on `bind`."""
     return [
         str(rerun_executable()),
         "--serve-web",
         str(recording),
+        "--bind",
+        bind,
         "--port",
         str(grpc_port),
         "--web-viewer-port",

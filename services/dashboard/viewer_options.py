@@ -1,4 +1,5 @@
-"""The viewer's host and the gRPC server's memory limit, checked before anything starts.
+"""The viewer's host, the address its data server listens on and the gRPC server's memory limit,
+checked before anything starts.
 
 `--host` only goes into the printed URL and the CORS origin, so a wrong one (a wildcard, a URL,
 a name with a space) used to give a URL no browser opens, with no error; an IPv6 address needs
@@ -6,6 +7,11 @@ brackets in a URL.  `--memory-limit` went to Rerun unchecked, which refused it o
 dashboard had joined the swarm, in its own words.  Each check here raises `ValueError` with the
 reason (a settings validator reports it under the field's name); `*_argument` wraps it for
 argparse, where the flag is named.
+
+`--bind` is the address the data server listens on.  Rerun's own default is every interface,
+which let anyone who reached the machine stream the swarm's truth and telemetry from the
+dashboard while the router let nobody in without credentials: the default is now the loopback
+address when `--host` is this machine, and every interface only when the browser is elsewhere.
 """
 
 from __future__ import annotations
@@ -44,6 +50,34 @@ def browser_host(text: str) -> str:
     return host
 
 
+LOOPBACK_HOSTS = frozenset({"127.0.0.1", "localhost", "[::1]"})
+"""`--host` values that name this machine to a browser on it."""
+
+
+def listen_address(text: str) -> str:
+    """An IP address to listen on (`--bind`): IPv4 or IPv6, without brackets; 0.0.0.0 or ::
+    for every interface."""
+    bare = text.strip()
+    if bare.startswith("[") and bare.endswith("]"):
+        bare = bare[1:-1]
+    try:
+        return ipaddress.ip_address(bare).compressed
+    except ValueError:
+        raise ValueError(
+            f"{text!r} is not an IP address to listen on (e.g. 127.0.0.1, 0.0.0.0 for every "
+            "interface, ::1)"
+        ) from None
+
+
+def default_listen_address(host: str) -> str:
+    """Where the data server listens when no `--bind` is given: the loopback address for a
+    browser on this machine (`host` in LOOPBACK_HOSTS), else every interface, so that the
+    browser at `host` reaches it."""
+    if host == "[::1]":
+        return "::1"
+    return "127.0.0.1" if host in LOOPBACK_HOSTS else "0.0.0.0"  # a browser elsewhere
+
+
 def server_memory_limit(text: str) -> str:
     """A memory size Rerun's gRPC server takes (`MEMORY_SIZE`; a percentage at most 100),
     returned as given."""
@@ -70,5 +104,13 @@ def server_memory_limit_argument(text: str) -> str:
     """`server_memory_limit` as an argparse type."""
     try:
         return server_memory_limit(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def listen_address_argument(text: str) -> str:
+    """`listen_address` as an argparse type."""
+    try:
+        return listen_address(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None

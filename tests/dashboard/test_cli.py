@@ -281,3 +281,53 @@ def test_a_killed_replay_takes_reruns_server_with_it(
     finally:
         if _state(servers[0]) not in (None, "Z"):
             os.kill(servers[0], signal.SIGKILL)  # what the test found left behind
+
+
+def _listening_addresses(port: int) -> set[str]:
+    """The local addresses of the TCP sockets listening on `port` (IPv4, /proc/net/tcp)."""
+    addresses = set()
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        local, state = line.split()[1], line.split()[3]
+        address_hex, port_hex = local.split(":")
+        if state == "0A" and int(port_hex, 16) == port:  # 0A: LISTEN
+            addresses.add(socket.inet_ntoa(bytes.fromhex(address_hex)[::-1]))
+    return addresses
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads /proc/net/tcp")
+@pytest.mark.parametrize(
+    ("command", "extra", "expected"),
+    [
+        ("dashboard", [], "127.0.0.1"),
+        ("dashboard", ["--bind", "0.0.0.0"], "0.0.0.0"),
+        ("dashboard", ["--host", "robots.lab"], "0.0.0.0"),
+        ("replay", [], "127.0.0.1"),
+    ],
+)
+def test_the_data_server_listens_on_loopback_unless_the_browser_is_elsewhere(
+    tmp_path: Path,
+    children: list[Child],
+    dashboard_credentials: str,
+    finished_recording: bytes,
+    command: str,
+    extra: list[str],
+    expected: str,
+) -> None:
+    # Before, Rerun's gRPC server listened on every interface: anyone who reached the machine
+    # streamed the swarm's truth and telemetry from the dashboard, credentials or not.
+    grpc_port = free_port()
+    argv = ["-m", "services.dashboard", command, "--grpc-port", str(grpc_port)]
+    argv += ["--web-port", str(free_port()), *extra]
+    if command == "dashboard":
+        argv += ["--scenario", str(PAPER), "--credentials", dashboard_credentials]
+        argv += ["--connect", f"tcp/127.0.0.1:{free_port()}"]
+    else:
+        recording = tmp_path / "run.rrd"
+        recording.write_bytes(finished_recording)
+        argv.append(str(recording))
+    server = start(command, argv, tmp_path / "logs")
+    children.append(server)
+    server.wait_for_line("open http://")
+    wait_for(lambda: _listening_addresses(grpc_port), timeout_s=30)
+    assert _listening_addresses(grpc_port) == {expected}
+    assert server.stop(signal.SIGTERM, timeout_s=15) in (0, -signal.SIGTERM)

@@ -5,7 +5,12 @@ from __future__ import annotations
 
 import pytest
 
-from services.dashboard.viewer_options import browser_host, server_memory_limit
+from services.dashboard.viewer_options import (
+    browser_host,
+    default_listen_address,
+    listen_address,
+    server_memory_limit,
+)
 
 
 @pytest.mark.parametrize(
@@ -64,3 +69,21 @@ def test_other_sizes_are_refused(given: str) -> None:
 def test_a_share_above_the_whole_memory_is_refused() -> None:
     with pytest.raises(ValueError, match="at most 100%"):
         server_memory_limit("150%")
+
+
+@pytest.mark.parametrize(
+    ("host", "address"),
+    [("127.0.0.1", "127.0.0.1"), ("localhost", "127.0.0.1"), ("[::1]", "::1"),
+     ("robots.lab", "0.0.0.0"), ("192.168.1.20", "0.0.0.0")],
+)  # fmt: skip
+def test_the_data_server_listens_where_the_browser_can_reach_it_and_no_wider(
+    host: str, address: str
+) -> None:
+    assert default_listen_address(host) == address
+
+
+@pytest.mark.parametrize("given", ["nope", "http://1.2.3.4", "1.2.3", "*", ""])
+def test_a_listen_address_that_is_no_ip_address_is_refused(given: str) -> None:
+    with pytest.raises(ValueError, match="is not an IP address to listen on"):
+        listen_address(given)
+    assert listen_address("[::]") == "::" and listen_address(" 0.0.0.0 ") == "0.0.0.0"
