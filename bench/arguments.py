@@ -8,26 +8,24 @@ import argparse
 import math
 
 
-def positive_int(text: str) -> int:
-    """An integer of at least 1."""
+def _integer_at_least(text: str, least: int, what: str) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a count of at least 1")
+    if value < least:
+        raise argparse.ArgumentTypeError(f"{text!r} is {what}")
     return value
+
+
+def positive_int(text: str) -> int:
+    """An integer of at least 1."""
+    return _integer_at_least(text, 1, "not a count of at least 1")
 
 
 def non_negative_int(text: str) -> int:
     """An integer of at least 0 (a seed)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is negative")
-    return value
+    return _integer_at_least(text, 0, "negative")
 
 
 def positive_float(text: str) -> float:

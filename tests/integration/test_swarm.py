@@ -41,6 +41,7 @@ from tests.integration.conftest import (
     run_swarm,
     swarm_cli,
 )
+from tests.support.full_device import DEV_FULL, run_with_stdout_on_a_full_device
 from tests.support.waiting import wait_for
 
 pytestmark = pytest.mark.slow
@@ -343,21 +344,16 @@ def test_a_login_the_router_refuses_is_one_line_on_stderr_and_nothing_on_stdout(
         router.wait(timeout=30)
 
 
-@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full on this system")
+@pytest.mark.skipif(not DEV_FULL.exists(), reason="no /dev/full on this system")
 def test_swarm_up_with_stdout_on_a_full_device_runs_to_its_end(tmp_path: Path) -> None:
     # Before, the first line it printed after starting the swarm raised, and the launcher took
     # every process down with it: no run, a traceback, status 1.
     out = tmp_path / "run"
-    with open("/dev/full", "w") as full:
-        ran = subprocess.run(
-            [sys.executable, "-m", "services.cli.main", "up", "--out", str(out)]
-            + ["--port", str(free_port()), "--no-dashboard", "--lockstep", "--duration", "2"],
-            stdout=full,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-            timeout=600,
-        )
+    ran = run_with_stdout_on_a_full_device(
+        ["up", "--out", str(out), "--port", str(free_port())]
+        + ["--no-dashboard", "--lockstep", "--duration", "2"],
+        ROOT,
+    )
     assert ran.returncode == 1, ran.stderr
     assert "Traceback" not in ran.stderr, ran.stderr
     assert ran.stderr.count("swarm up: cannot write to standard output") == 1, ran.stderr

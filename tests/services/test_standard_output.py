@@ -5,17 +5,15 @@ from __future__ import annotations
 import errno
 import io
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from services.standard_output import GuardedOutput
+from tests.support.full_device import DEV_FULL, run_with_stdout_on_a_full_device
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
-DEV_FULL = Path("/dev/full")
 needs_dev_full = pytest.mark.skipif(not DEV_FULL.exists(), reason="no /dev/full on this system")
 
 
@@ -64,16 +62,11 @@ def test_swarm_sim_with_stdout_on_a_full_device_writes_its_summary_and_says_so(
 ) -> None:
     # Before: a traceback from the first print, status 1.
     out = tmp_path / "out"
-    with DEV_FULL.open("w") as full:
-        ran = subprocess.run(
-            [sys.executable, "-m", "services.cli.main", "sim", "--scenario", str(PAPER)]
-            + ["--out", str(out), "--duration", "1", "--no-figures", "--no-compare"],
-            stdout=full,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-            timeout=600,
-        )
+    ran = run_with_stdout_on_a_full_device(
+        ["sim", "--scenario", str(PAPER), "--out", str(out)]
+        + ["--duration", "1", "--no-figures", "--no-compare"],
+        ROOT,
+    )
     assert ran.returncode == 1, ran.stderr
     assert "Traceback" not in ran.stderr and "Exception ignored" not in ran.stderr, ran.stderr
     assert ran.stderr.count("cannot write to standard output (No space left on device)") == 1
