@@ -177,9 +177,8 @@ def open_client(
         return open_session(config)
 
 
-STOPPABLE_WAIT_POLL_S = 0.5
-"""How long one attempt of `open_client_until_stopped` waits for the router before it looks
-at its stop event again: the longest a Ctrl-C waits while no router lets the process in."""
+STOP_CHECK_PERIOD_S = 0.1
+"""How often `open_client_until_stopped` looks at its stop event while Zenoh waits."""
 
 
 def open_client_until_stopped(
@@ -191,20 +190,28 @@ def open_client_until_stopped(
     """`open_client` for a process that waits for its router (a robot, the world), given up
     when `stop` is set first (None).  zenoh.open waits in Rust, deaf to the signal handlers
     that set `stop`: a robot started before its router, or with a wrong endpoint, ignored
-    Ctrl-C and SIGTERM until a router came.  So the wait is cut into attempts of
-    `STOPPABLE_WAIT_POLL_S`.  A config that does not wait for the router (a user's
-    $ZENOH_CONFIG without `connect/timeout_ms: -1`) is tried once, as it says."""
-    waits_for_ever = _load(config_file, "client.json5").get_json("connect/timeout_ms") == "-1"
-    if not waits_for_ever:
-        return open_client(connect, config_file, credentials)
-    while not stop.is_set():
+    Ctrl-C and SIGTERM until a router came.  So Zenoh waits on a thread of its own, with its
+    own retry schedule, while this one looks at `stop`; a process that gives up exits with
+    that thread still waiting, as the dashboard's does.  Raises what `open_client` raises."""
+    opened: list[zenoh.Session] = []
+    failed: list[BaseException] = []
+    done = threading.Event()
+
+    def open_it() -> None:
         try:
-            return open_client(
-                connect, config_file, credentials, connect_timeout_s=STOPPABLE_WAIT_POLL_S
-            )
-        except SessionOpenError:
-            continue
-    return None
+            opened.append(open_client(connect, config_file, credentials))
+        except BaseException as exc:  # handed to the caller's thread, raised there
+            failed.append(exc)
+        finally:
+            done.set()
+
+    threading.Thread(target=open_it, name="zenoh-connect", daemon=True).start()
+    while not done.wait(STOP_CHECK_PERIOD_S):
+        if stop.is_set():
+            return None
+    if failed:
+        raise failed[0]
+    return opened[0]
 
 
 class SessionOpenError(zenoh.ZError):  # type: ignore[misc]  # final in the stubs only
