@@ -23,8 +23,10 @@ _NAME = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
 def check_name(kind: str, name: str) -> str:
     """A swarm or robot name usable as one key chunk; ValueError otherwise."""
     if not _NAME.match(name):
+        # A name of thousands of characters is named by its start and length, not echoed whole.
+        shown = repr(name) if len(name) <= 40 else f"{name[:32]!r}... ({len(name)} characters)"
         raise ValueError(
-            f"{kind} name {name!r} must be 1-32 characters: a lowercase letter, then lowercase "
+            f"{kind} name {shown} must be 1-32 characters: a lowercase letter, then lowercase "
             "letters, digits, '-' or '_'"
         )
     return name

@@ -73,6 +73,9 @@ def test_a_swarm_name_that_is_not_one_key_chunk_is_a_usage_error(
     line = _refused(["credentials", "--swarm", "**", str(tmp_path / "creds")], capsys)
     assert line.startswith("swarm credentials: --swarm: swarm name '**' must be")
     assert not (tmp_path / "creds").exists()
+    # A long one is named by its start and length (it was echoed whole: 5,000 characters).
+    line = _refused(["status", "--swarm", "s" * 5000, "--connect", NOBODY], capsys)
+    assert f"swarm name {'s' * 32!r}... (5000 characters) must be" in line and len(line) < 250
 
 
 def test_a_parameter_file_too_large_for_the_router_is_refused_before_sending(
