@@ -337,9 +337,11 @@ def test_a_robot_fault_the_world_does_not_answer_is_not_sent_elsewhere(
     admin = _Admin({("world", "status"): WORLD_STATUS})
     _install(monkeypatch, admin)
     assert cli.main(["fault", "kill", "robot2"]) == cli.EXIT_USAGE
+    # The launcher is asked only for its status, to say why the world does not answer.
     assert [(target, verb) for target, verb, _ in admin.asked] == [
         ("world", "status"),
         ("world", "fault"),
+        ("launcher", "status"),
     ]
     assert "no answer from world" in capsys.readouterr().err
 
@@ -350,7 +352,10 @@ def test_another_fault_nobody_answers_is_a_clear_error(
     admin = _Admin({})
     _install(monkeypatch, admin)
     assert cli.main(["fault", "heal", "--timeout", "0.1"]) == cli.EXIT_USAGE
-    assert [(target, verb) for target, verb, _ in admin.asked] == [("world", "status")]
+    assert [(target, verb) for target, verb, _ in admin.asked] == [
+        ("world", "status"),
+        ("launcher", "status"),
+    ]
     assert "no answer from world" in capsys.readouterr().err
 
 
@@ -365,3 +370,31 @@ def test_dry_run_prints_the_json_and_sends_nothing(
     assert FAULT_ADAPTER.validate_json(printed) == PartitionFault(
         fault="partition", robots=("robot3",)
     )
+
+
+@pytest.mark.parametrize(
+    ("world", "said"),
+    [
+        ({"running": False, "killed": True, "stopped": False, "exit_code": -9},
+         "it was killed and stays down: `swarm restart world` starts it again"),
+        ({"running": True, "killed": False, "stopped": True, "exit_code": None},
+         "it is stopped: `swarm fault cont world` continues it"),
+        ({"running": False, "killed": False, "stopped": False, "exit_code": 3},
+         "it exited by itself (status 3): see /runs/logs/world.log"),
+    ],
+)  # fmt: skip
+def test_a_world_that_does_not_answer_is_explained_from_the_launchers_status(
+    operator: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    world: dict[str, object],
+    said: str,
+) -> None:
+    # Before: "(is it running? start one with `swarm up`)" while the swarm ran.
+    process = {"pid": 41, "restarts": 0, "log": "/runs/logs/world.log", **world}
+    status = json.dumps({"ok": True, "processes": {"world": process}}).encode()
+    admin = _Admin({("launcher", "status"): status})
+    _install(monkeypatch, admin)
+    assert cli.main(["fault", "heal", "--timeout", "0.1"]) == cli.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert said in err and "start one with" not in err, err
