@@ -282,9 +282,13 @@ def _only_robots(given: str | None, scenario: str, robots: Sequence[str]) -> tup
     scenario does not have is a usage error naming it."""
     if given is None:
         return None
-    names = tuple(dict.fromkeys(part.strip() for part in given.split(",") if part.strip()))
+    listed = [part.strip() for part in given.split(",") if part.strip()]
+    names = tuple(dict.fromkeys(listed))
     if not names:
         raise UsageError("--only needs robot names, e.g. --only robot3,robot4")
+    if len(names) < len(listed):  # a typo for another robot, more likely than a repeat
+        twice = next(name for name in names if listed.count(name) > 1)
+        raise UsageError(f"--only names {twice!r} twice")
     unknown = [name for name in names if name not in robots]
     if unknown:
         raise UsageError(
@@ -867,6 +871,15 @@ def _bus_word(text: str) -> int:
     return number
 
 
+def _process_name(text: str) -> str:
+    """A process of `swarm kill` and `swarm restart`, for argparse's `type=`: a name that
+    could be one (`''` and `a/b` were sent to the launcher, which answered with its list)."""
+    try:
+        return check_name("process", text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _endpoints(given: str | None) -> list[str]:
     if given:
         return split_endpoints(given)
@@ -1119,7 +1132,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         cmd = sub.add_parser(name, help=text, description=text + ".")
         if name != "status":
             cmd.add_argument(
-                "process", help="a robot's name (e.g. robot2), world, router or dashboard"
+                "process",
+                type=_process_name,
+                help="a robot's name (e.g. robot2), world, router or dashboard",
             )
         else:
             cmd.add_argument(

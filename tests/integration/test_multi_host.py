@@ -743,6 +743,10 @@ def test_only_with_a_robot_the_scenario_lacks_is_refused_naming_it(tmp_path: Pat
     assert "robot9" in refused.stderr and "robot1, robot2, robot3" in refused.stderr
     assert "Traceback" not in refused.stderr
     assert not out.exists()
+    # A robot named twice (before: started once, without a word; a typo for another robot).
+    twice = _swarm_up("--out", str(out), "--only", "robot3,robot3")
+    assert twice.returncode == 2 and "--only names 'robot3' twice" in twice.stderr, twice.stderr
+    assert not out.exists()
 
 
 def test_joining_a_world_elsewhere_takes_no_world_setting_and_only_a_tls_link(

@@ -205,3 +205,12 @@ def test_a_name_too_long_for_the_file_system_is_one_line(
     too_long = str(tmp_path / ("a" * 300))
     refused = _refused([too_long if word == "NAME" else word for word in argv], capsys)
     assert "File name too long" in refused and too_long in refused, refused
+
+
+@pytest.mark.parametrize(("command", "process"), [("kill", ""), ("restart", "a/b"), ("kill", "*")])
+def test_a_process_that_cannot_be_named_is_refused_before_connecting(
+    capsys: pytest.CaptureFixture[str], command: str, process: str
+) -> None:
+    # Before, `swarm kill ''` went to the launcher, which answered with its list, status 1.
+    line = _refused([command, process, "--connect", NOBODY], capsys)
+    assert f"argument process: process name {process!r} must be" in line, line
