@@ -41,6 +41,14 @@ class CheckpointMismatchError(ValueError):
 class CheckpointDamagedError(ValueError):
     """The checkpoint on disk cannot be read: cut short, overwritten, or not a checkpoint."""
 
+    @classmethod
+    def at(cls, path: str | os.PathLike[str], problem: str) -> CheckpointDamagedError:
+        """The error for the checkpoint at `path`, `problem` saying what is wrong with it."""
+        return cls(
+            f"{os.fspath(path)} is damaged ({problem}) and cannot be resumed: move it away to "
+            "start that run over"
+        )
+
 
 @dataclass(frozen=True)
 class RunCheckpoint:
@@ -104,10 +112,7 @@ def load_checkpoint(path: str | os.PathLike[str]) -> RunCheckpoint:
         raise
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, RecursionError) as exc:
         # ValueError: also numpy's refusal of an object array, which a checkpoint never holds.
-        raise CheckpointDamagedError(
-            f"{os.fspath(path)} is damaged ({type(exc).__name__}) and cannot be resumed: move "
-            "it away to start that run over"
-        ) from None
+        raise CheckpointDamagedError.at(path, type(exc).__name__) from None
 
 
 def checkpoint_problem(checkpoint: RunCheckpoint, dim: int, budget: int) -> str | None:

@@ -238,10 +238,7 @@ def prepare_run_dir(run_dir: Path, settings: TuningSettings, resume: bool) -> in
     loaded = load_checkpoint(checkpoint)
     problem = checkpoint_problem(loaded, DIMENSION, settings.budget)
     if problem is not None:
-        raise CheckpointDamagedError(
-            f"{checkpoint} is damaged ({problem}) and cannot be resumed: move it away to start "
-            "that run over"
-        )
+        raise CheckpointDamagedError.at(checkpoint, problem)
     return loaded.n_evaluations
 
 

@@ -237,10 +237,7 @@ def _resume(
     except (TypeError, ValueError, KeyError) as exc:  # numpy's refusal of a state not its own
         problem = f"rng_state: {type(exc).__name__}"
     if problem is not None:
-        raise CheckpointDamagedError(
-            f"{checkpoint_path} is damaged ({problem}) and cannot be resumed: move it away to "
-            "start that run over"
-        )
+        raise CheckpointDamagedError.at(checkpoint_path, problem)
     progress = _RunState(
         generation=checkpoint.generation,
         population=Population(checkpoint.positions, checkpoint.costs, checkpoint.auxiliary),
