@@ -272,7 +272,15 @@ def test_a_killed_replay_takes_reruns_server_with_it(
     children.append(replay)
     replay.wait_for_line("open http://127.0.0.1:")
     pid = replay.process.pid
-    servers = [int(child) for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+
+    def servers_started() -> list[int]:
+        children_file = Path(f"/proc/{pid}/task/{pid}/children")
+        return [int(child) for child in children_file.read_text().split()]
+
+    # The URL is printed before Rerun's server is started: on a loaded machine the test may
+    # look before the server exists.
+    wait_for(servers_started, timeout_s=30)
+    servers = servers_started()
     assert len(servers) == 1, servers
     replay.process.kill()
     replay.process.wait()
