@@ -449,12 +449,16 @@ def generate_scenario_text(request: GenerateRequest) -> str:
         return parse_scenario(parse_yaml(text), f"<generated {name}>")
 
     # The slots at t = 0 need the trajectory only: place them with the robots at their slots
-    # and no obstacles, then the obstacles, then the initial poses around them.
+    # and no obstacles, then the obstacles, then the initial poses around them.  The
+    # provisional starts, 10 m apart in rows of 16, stay well inside the positioning range
+    # whatever the robot count.
     provisional = parse(
         "\n".join(
             [
                 *top,
-                *robot_lines([(0.0, 10.0 * i, 90.0) for i in range(request.robots)]),
+                *robot_lines(
+                    [(10.0 * (i % 16), 10.0 * (i // 16), 90.0) for i in range(request.robots)]
+                ),
                 "",
                 "obstacles: []",
                 *radio,

@@ -11,6 +11,7 @@ from robot_firmware.control.apf import repulsive_force
 from robot_firmware.control.formation import follower_slot_in_world
 from swarm_config.generate import (
     FORMATIONS,
+    MAX_ROBOTS,
     START_MARGIN_M,
     TRAJECTORIES,
     GenerateRequest,
@@ -70,6 +71,15 @@ def _check_at_rest(scenario: Scenario, robots: int) -> None:
 def test_every_size_validates_and_keeps_slots_and_starts_apart(formation: str) -> None:
     for robots in range(1, 65):
         _, scenario = _generate(robots=robots, formation=formation)
+        _check_at_rest(scenario, robots)
+
+
+@pytest.mark.parametrize("formation", FORMATIONS)
+def test_the_largest_swarm_allowed_can_be_generated(formation: str) -> None:
+    """Up to `MAX_ROBOTS`: the generator's own placeholder starts once lay beyond the
+    positioning receiver's range from the 216th robot on, so 216-256 robots were refused."""
+    for robots in (215, 216, MAX_ROBOTS):
+        _, scenario = _generate(robots=robots, formation=formation, obstacles=3)
         _check_at_rest(scenario, robots)
 
 
