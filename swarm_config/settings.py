@@ -18,19 +18,34 @@ from typing import Annotated, Any, ClassVar, Self
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError
 
+PROBLEM_LINE_CHARS_MAX = 300
+"""The longest line one problem of a refused file or message gets: pydantic quotes some values
+it refuses (a union's tag), and a 100 kB `kind` came back as 100 kB of error."""
+PROBLEM_LINES_MAX = 50
+"""The most problems listed one per line; the count of the rest follows."""
+
 
 def describe_validation_error(
     heading: str, error: ValidationError, env: Mapping[str, str] | None = None
 ) -> str:
-    """'heading (N problems):' then one line per problem: 'field.path (or $VAR): message'."""
+    """'heading (N problems):' then one line per problem: 'field.path (or $VAR): message',
+    each cut in the middle to `PROBLEM_LINE_CHARS_MAX`, and at most `PROBLEM_LINES_MAX` of
+    them."""
     count = error.error_count()
     lines = [f"{heading} ({count} problem{'s' if count != 1 else ''}):"]
-    for item in error.errors(include_url=False):
+    for item in error.errors(include_url=False)[:PROBLEM_LINES_MAX]:
         where = ".".join(str(p) for p in item["loc"]) or "(top level)"
         var = env.get(str(item["loc"][0])) if env and item["loc"] else None
         hint = f" (or ${var})" if var else ""
         message = item["msg"].removeprefix("Value error, ")
-        lines.append(f"  {where}{hint}: {message}")
+        line = f"  {where}{hint}: {message}"
+        if len(line) > PROBLEM_LINE_CHARS_MAX:  # its start and its end name the problem
+            keep = PROBLEM_LINE_CHARS_MAX // 2
+            cut = len(line) - 2 * keep
+            line = f"{line[:keep]}[... {cut:,} characters ...]{line[-keep:]}"
+        lines.append(line)
+    if count > PROBLEM_LINES_MAX:
+        lines.append(f"  ... and {count - PROBLEM_LINES_MAX:,} more")
     return "\n".join(lines)
 
 
@@ -131,12 +146,75 @@ models behind every loader then judge like any other value."""
 
 _MERGE_KEY_TAG = "tag:yaml.org,2002:merge"
 
+YAML_EXPANDED_NODES_MAX = 1_000_000
+"""The most values (scalars, lists and mappings) a YAML document may stand for once every
+alias is replaced by what it refers to.  Aliases let a few hundred bytes stand for billions of
+values (each of ten lists holding the one before ten times, the "billion laughs"): PyYAML
+builds them as shared references at once, but whatever walks the data after it visits each
+reference: a scenario whose trajectory `kind` was 10**7 values in 428 bytes of aliases took 13 s
+to refuse, with 358 MB of error text quoting the tag.  A generated scenario of 256 robots is
+some 4,400 values; a 1 MiB message of plain text some 500,000."""
+
+
+def _expanded_node_count(root: yaml.Node, limit: int) -> int:
+    """How many nodes `root` stands for with every alias expanded, counting up to `limit + 1`
+    and stopping there.  yaml.YAMLError for a node that holds itself (`&a [*a]`).  A list or
+    mapping met again is counted from a memo, so the walk is linear in the document."""
+    expanded: dict[int, int] = {}
+    open_nodes: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if not isinstance(node, yaml.CollectionNode):
+            expanded[id(node)] = 1
+            continue
+        children: list[yaml.Node] = (
+            [part for pair in node.value for part in pair]
+            if isinstance(node, yaml.MappingNode)
+            else node.value
+        )
+        if children_done:
+            open_nodes.discard(id(node))
+            total = 1
+            for child in children:
+                total += expanded[id(child)] if isinstance(child, yaml.CollectionNode) else 1
+            expanded[id(node)] = min(limit + 1, total)
+            continue
+        if id(node) in expanded:
+            continue
+        if id(node) in open_nodes:  # every open node is an ancestor of what the stack holds
+            raise yaml.composer.ComposerError(
+                None, None, "found an alias inside the node it refers to", node.start_mark
+            )
+        open_nodes.add(id(node))
+        stack.append((node, True))
+        stack.extend(
+            (child, False)
+            for child in children
+            if isinstance(child, yaml.CollectionNode) and id(child) not in expanded
+        )
+    return expanded[id(root)]
+
 
 class _UniqueKeySafeLoader(_SafeLoader):  # type: ignore[misc,valid-type]  # a base chosen at import
-    """`_SafeLoader` that refuses a mapping holding one key twice.  PyYAML keeps the last of
-    the two silently, so a scenario with `duration_s` written twice ran the second one and a
+    """`_SafeLoader` that refuses a mapping holding one key twice, and a document whose aliases
+    expand beyond `YAML_EXPANDED_NODES_MAX` values.  PyYAML keeps the last of two equal keys
+    silently, so a scenario with `duration_s` written twice ran the second one and a
     parameter file's repeated key hid the first value.  Keys a merge (`<<: *anchor`) brings in
     are not repeats: the mapping's own keys override them, as YAML says."""
+
+    def get_single_data(self) -> object:
+        node = self.get_single_node()
+        if node is None:
+            return None
+        if _expanded_node_count(node, YAML_EXPANDED_NODES_MAX) > YAML_EXPANDED_NODES_MAX:
+            raise yaml.composer.ComposerError(
+                None,
+                None,
+                f"its aliases expand to more than {YAML_EXPANDED_NODES_MAX:,} values",
+                node.start_mark,
+            )
+        return self.construct_document(node)
 
     def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[object, object]:
         if isinstance(node, yaml.MappingNode):

@@ -68,7 +68,16 @@ def nasty(rng: random.Random) -> Any:
     return rng.choice(HUGE_JSON) if rng.random() < 0.02 else rng.choice(NASTY_JSON)
 
 
+def alias_bomb(levels: int) -> str:
+    """One line of flow YAML whose last list stands for 10**levels ones: each level's list
+    holds the one before ten times through an alias (the "billion laughs")."""
+    parts = ["&l0 [" + ", ".join(["1"] * 10) + "]"]
+    parts += [f"&l{k} [" + ", ".join([f"*l{k - 1}"] * 10) + "]" for k in range(1, levels + 1)]
+    return "[" + ", ".join(parts) + "]"
+
+
 YAML_TRAPS = (
+    alias_bomb(8),
     "2001-02-30",
     "2001-13-01",
     "!!python/object:os.system x",
@@ -93,8 +102,9 @@ YAML_TRAPS = (
     "\ufeff",
     "a: b: c",
 )
-"""YAML fragments that trip loaders: dates that do not exist (PyYAML raises ValueError),
-nesting deeper than the composer's recursion, tags, anchors, directives, control characters."""
+"""YAML fragments that trip loaders: aliases that expand to 10**8 values, dates that do not
+exist (PyYAML raises ValueError), nesting deeper than the composer's recursion, tags, anchors,
+directives, control characters."""
 
 
 def random_bytes(rng: random.Random, max_size: int) -> bytes:

@@ -31,6 +31,7 @@ from swarm_config.radio import PROFILES
 from tests.fuzz.generate import (
     NASTY_JSON,
     YAML_TRAPS,
+    alias_bomb,
     json_bytes,
     mutate_json,
     mutate_text,
@@ -374,6 +375,22 @@ def test_yaml_traps_in_a_parameter_file_are_refused(robot: Robot) -> None:
             robot.process.admin_handlers(), "params", f"error_centres: {trap}\n".encode()
         )
         assert isinstance(reply, AdminError) and reply.reason != AdminRefusal.HANDLER_FAILED, trap
+
+
+def test_a_parameter_file_of_expanding_aliases_is_refused_and_the_old_parameters_stay(
+    robot: Robot,
+) -> None:
+    """Under 1,000 bytes of aliases standing for 10**8 values: a robot's `params` reads its
+    file with the one loader every file format goes through, which refuses them unwalked."""
+    handlers = robot.process.admin_handlers()
+    before = answer(handlers, "params", b"")
+    bomb = f"note: {alias_bomb(8)}\nerror_centres: [-1, 0, 1]\nrate_centres: [-1, 0, 1]\n"
+    bomb = bomb.encode()
+    assert len(bomb) < 1_000
+    reply = answer(handlers, "params", bomb)
+    assert isinstance(reply, AdminError) and reply.reason == AdminRefusal.NOT_YAML
+    assert "aliases expand to more than 1,000,000 values" in reply.error
+    assert answer(handlers, "params", b"") == before
 
 
 def test_a_parameter_file_with_a_key_twice_is_refused_and_the_old_parameters_stay(

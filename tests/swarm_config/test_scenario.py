@@ -14,6 +14,7 @@ from swarm_config.scenario import (
     snapshot_scenario,
 )
 from swarm_config.settings import INPUT_FILE_BYTES_MAX, parse_yaml
+from tests.fuzz.generate import alias_bomb
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -127,6 +128,50 @@ def test_a_key_written_twice_is_refused_naming_it_and_both_lines(tmp_path: Path)
     nested.write_text(text.replace("  radius_m: 1.5\n", "  radius_m: 1.5\n  radius_m: 2.5\n"))
     with pytest.raises(ScenarioError, match="found the key 'radius_m' twice"):
         load_scenario(nested)
+
+
+def test_aliases_that_expand_beyond_a_million_values_are_refused(tmp_path: Path) -> None:
+    """484 bytes of nested aliases as the trajectory's `kind` stand for 10**8 values.  The
+    validation error quoted the tag it found: for 10**7 values refusing the file took 13 s and
+    wrote 358 MB of error text.  The loader refuses such a file before anything walks it."""
+    text = PAPER.read_text(encoding="utf-8")
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text(text.replace("  kind: circle\n", f"  kind: {alias_bomb(8)}\n"), "utf-8")
+    with pytest.raises(ScenarioError, match="aliases expand to more than 1,000,000 values") as e:
+        load_scenario(bomb)
+    assert len(str(e.value)) < 300
+    with pytest.raises(yaml.YAMLError, match="alias inside the node it refers to"):
+        parse_yaml("a: &a [1, *a]")
+    with pytest.raises(yaml.YAMLError, match="alias inside the node it refers to"):
+        parse_yaml("a: &a {b: [*a]}")
+    # Aliases within the bound still load, shared or merged.
+    assert parse_yaml(f"a: {alias_bomb(4)}")["a"][-1] == [[[[[1] * 10] * 10] * 10] * 10] * 10
+    assert parse_yaml("x: &x [1]\ny: [*x, *x]") == {"x": [1], "y": [[1], [1]]}
+
+
+def test_a_refusal_quotes_a_long_value_shortened_and_lists_fifty_problems_at_most() -> None:
+    """A 100 kB trajectory `kind` came back as 100 kB of error (pydantic quotes a tag it
+    does not know); each problem is now cut in its middle, keeping what names it."""
+    data = _paper_data()
+    data["trajectory"]["kind"] = "x" * 100_000
+    with pytest.raises(ScenarioError) as refused:
+        parse_scenario(data)
+    line = str(refused.value).splitlines()[-1]
+    assert len(line) < 400
+    assert line.startswith("  trajectory: Input tag 'xxx")
+    assert "[... 99," in line
+    assert line.endswith(
+        "does not match any of the expected tags: 'circle', 'lemniscate', 'polyline'"
+    )
+    data = _paper_data()
+    for robot in data["robots"]:
+        robot["extra"] = 1
+    data["robots"] = data["robots"] * 40
+    with pytest.raises(ScenarioError, match=r"invalid scenario \(120 problems\)") as refused:
+        parse_scenario(data)
+    lines = str(refused.value).splitlines()
+    assert len(lines) == 1 + 50 + 1
+    assert lines[-1] == "  ... and 70 more"
 
 
 def test_a_campaign_partition_of_every_robot_or_of_one_twice_is_refused() -> None:
