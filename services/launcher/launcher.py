@@ -78,6 +78,7 @@ from robot_firmware.net.messages import (
     refusal_of,
 )
 from robot_firmware.net.session import open_client
+from services.launcher.open_files import open_file_limit_problem, router_files_needed
 from services.launcher.orphans import LAUNCHER_PID_ENV
 from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
 from services.listen_ports import bind_problem, endpoint_listen_problem
@@ -590,7 +591,16 @@ class Launcher:
 
         Raises LaunchError, having stopped what it started, when the router could not listen
         (checked before it starts), exits before it lets the launcher in, or runs
-        `ROUTER_LOGIN_TIMEOUT_S` without letting it in."""
+        `ROUTER_LOGIN_TIMEOUT_S` without letting it in, and when the open-file limit is too
+        low for the swarm (services/launcher/open_files.py)."""
+        clients = len(self.children)  # the launcher's, less the router, and the launcher
+        limit_problem = open_file_limit_problem(router_files_needed(clients))
+        if limit_problem is not None:
+            self.shutdown()
+            raise LaunchError(
+                f"{limit_problem} for {clients} processes, so nothing was started (raise it "
+                "with `ulimit -n`, or start fewer robots)"
+            )
         for endpoint in self.router_listen_endpoints:
             problem = endpoint_listen_problem(endpoint)
             if problem is not None:

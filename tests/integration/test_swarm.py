@@ -32,6 +32,7 @@ import zenoh
 from robot_firmware import native
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.session import open_client
+from services.launcher.open_files import router_files_needed
 from swarm_config.scenario import load_scenario
 from tests.integration.conftest import (
     PAPER,
@@ -234,17 +235,25 @@ def test_writes_that_failed_during_a_run_are_counted_in_its_summary(tmp_path: Pa
     assert summary["write_failures"]["checkpoint"] >= 4  # one every 0.5 s of simulated time
 
 
-def test_a_host_out_of_open_files_ends_the_start_in_one_line(tmp_path: Path) -> None:
-    """`swarm up` under an open-file limit of 12: the launcher can start the router but not
-    the next process (before, a traceback from `subprocess`)."""
+@pytest.mark.parametrize(("robots", "limit"), [(3, 12), (12, 32)])
+def test_a_host_out_of_open_files_ends_the_start_in_one_line(
+    tmp_path: Path, robots: int, limit: int
+) -> None:
+    """`swarm up` under an open-file limit too low for its router.  Under 12, the launcher
+    could start the router but not the next process (a traceback from `subprocess` before
+    that); under 32, 12 robots all started and the router, out of descriptors, let the world
+    in never: the run waited without a word and wrote no summary."""
     port = free_port()
+    scenario = tmp_path / "scenario.yaml"
+    generate = [str(ROOT / "swarm"), "scenario", "generate", "--robots", str(robots)]
+    subprocess.run([*generate, "--out", str(scenario)], check=True, capture_output=True, cwd=ROOT)
 
     def few_open_files() -> None:
-        resource.setrlimit(resource.RLIMIT_NOFILE, (12, 12))
+        resource.setrlimit(resource.RLIMIT_NOFILE, (limit, limit))
 
     result = subprocess.run(
-        [str(ROOT / "swarm"), "up", "--out", str(tmp_path), "--lockstep", "--duration", "2"]
-        + ["--no-dashboard", "--port", str(port)],
+        [str(ROOT / "swarm"), "up", "--out", str(tmp_path / "run"), "--lockstep"]
+        + ["--scenario", str(scenario), "--duration", "2", "--no-dashboard", "--port", str(port)],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -254,9 +263,14 @@ def test_a_host_out_of_open_files_ends_the_start_in_one_line(tmp_path: Path) -> 
     assert result.returncode == 1, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]
-    assert last.startswith("swarm up: cannot start "), last
-    assert last.endswith("Too many open files (the open-file limit is 12: `ulimit -n`)"), last
-    with socket.socket() as probe:  # what did start was stopped: nothing listens on the port
+    needed = router_files_needed(robots + 2)  # with the world and the launcher
+    assert last == (
+        f"swarm up: this shell allows {limit} open files (`ulimit -Hn`), and the router needs "
+        f"{needed} for {robots + 2} processes, so nothing was started (raise it with `ulimit "
+        "-n`, or start fewer robots)"
+    )
+    assert not (tmp_path / "run" / "logs" / "router.log").exists()
+    with socket.socket() as probe:  # nothing listens on the port
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # past TIME_WAIT
         probe.bind(("127.0.0.1", port))
 
