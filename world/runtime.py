@@ -1033,6 +1033,11 @@ class WorldProcess:
                         self._checkpoint_writer.submit(self.tick, self.checkpoint_state())
                     self._checkpoint_writer.close()
                 final_written = self.write_summary(final=True)
+                log.info(
+                    "world ended at t = %.3f s: %s",
+                    self.engine.t_s,
+                    "final summary written" if final_written else "final summary NOT written",
+                )
                 self._session = self._events_pub = None
                 token.undeclare()
         return 0 if final_written else EXIT_SUMMARY_NOT_WRITTEN

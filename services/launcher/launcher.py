@@ -155,8 +155,32 @@ class Child:
     def running(self) -> bool:
         return self.process is not None and self.process.poll() is None
 
+    @property
+    def stopped_now(self) -> bool:
+        """Running and stopped by a signal, by the launcher or from outside (`kill -STOP`,
+        Ctrl-Z in a terminal of its own), as the kernel says where /proc tells; elsewhere
+        what the launcher itself did."""
+        if not self.running or self.process is None:
+            return False
+        state = process_state(self.process.pid)
+        return self.stopped if state is None else state in STOPPED_STATES
+
 
 ProcessFactory = Callable[[list[str], IO[bytes], dict[str, str]], "subprocess.Popen[bytes]"]
+
+STOPPED_STATES = ("T", "t")
+"""/proc/PID/stat states of a stopped process: by a signal, or by a debugger."""
+
+
+def process_state(pid: int) -> str | None:
+    """The state letter of /proc/PID/stat (R, S, D, T, t, Z, ...), None where it cannot be
+    read (not Linux, the process gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text(encoding="ascii", errors="replace")
+    except OSError:
+        return None
+    fields = stat[stat.rfind(")") + 1 :].split()  # the name in parentheses may hold spaces
+    return fields[0] if fields else None
 
 
 def default_factory(
@@ -504,7 +528,7 @@ class Launcher:
                 if child.process is None or child.running
                 else child.process.returncode,
                 killed=child.killed,
-                stopped=child.stopped and child.running,
+                stopped=child.stopped_now,
                 restarts=child.restarts,
                 log=str(child.log_path),
             )
@@ -736,12 +760,15 @@ class Launcher:
             child = self.children[name]
             if child.running and child.process is not None:
                 child.process.send_signal(signal.SIGTERM)
-                if child.stopped:  # a stopped process acts on SIGTERM once continued
-                    child.process.send_signal(signal.SIGCONT)
-                    child.stopped = False
+                # A stopped process acts on SIGTERM once continued, and it may have been
+                # stopped from outside (`kill -STOP`) without the launcher knowing: the world
+                # would then lose its final summary to the SIGKILL after the grace time.
+                child.process.send_signal(signal.SIGCONT)
+                child.stopped = False
                 try:
                     child.process.wait(timeout=grace_s)
                 except subprocess.TimeoutExpired:
+                    log.warning("%s did not end within %g s of SIGTERM: killed", name, grace_s)
                     child.process.kill()
                     child.process.wait()
             if child.log_file is not None:

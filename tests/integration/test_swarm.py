@@ -758,6 +758,71 @@ def test_swarm_up_with_its_dashboards_port_taken_says_so_and_starts_nothing(
     assert list((out / "logs").iterdir()) == []
 
 
+def _stopped(live_swarm: LiveSwarm, name: str) -> bool | None:
+    """The launcher's `stopped` for `name`, None when it did not answer."""
+    process = _launcher_status(live_swarm).get("processes", {}).get(name)
+    return None if process is None else bool(process["stopped"])
+
+
+def test_the_launcher_reports_stops_and_continues_made_outside_it(live_swarm: LiveSwarm) -> None:
+    """Before, the launcher's status knew only its own SIGSTOPs: a robot stopped with `kill
+    -STOP` showed as running, and one continued with `kill -CONT` after `swarm fault stop`
+    (what that command names for the router) stayed "stopped" for good."""
+    live = live_swarm
+    processes = live.all_running()["processes"]
+    pid = processes["robot2"]["pid"]
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        live.wait_for(lambda: _stopped(live, "robot2"), describe="robot2 shown stopped")
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    live.wait_for(lambda: _stopped(live, "robot2") is False, describe="robot2 shown running")
+    stopped = live.cli("fault", "stop", "robot3")
+    assert stopped.returncode == 0, stopped.stderr
+    assert _stopped(live, "robot3") is True
+    os.kill(processes["robot3"]["pid"], signal.SIGCONT)
+    live.wait_for(lambda: _stopped(live, "robot3") is False, describe="robot3 shown running")
+
+
+def test_a_world_stopped_from_outside_still_writes_its_own_final_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Before, the launcher sent SIGCONT after its SIGTERM only to a process it had stopped
+    itself: a world stopped with `kill -STOP` got SIGKILL after the grace time at the end of
+    the run, and the run's summary was its last checkpoint's."""
+    out, port = tmp_path / "run", free_port()
+    up = subprocess.Popen(
+        [str(ROOT / "swarm"), "up", "--out", str(out), "--port", str(port), "--duration"]
+        + ["600", "--no-dashboard"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    try:
+        live = LiveSwarm(up, port, out)
+        operator = out / "credentials" / "operator.json"
+        live.wait_for(operator.exists, describe="the run's credentials")
+        monkeypatch.setenv("SWARM_CREDENTIALS_FILE", str(operator))
+        world_pid = live.wait_for(
+            lambda: (s := _all_running(live)) and s["processes"]["world"]["pid"],
+            describe="the swarm running",
+        )
+        live.wait_for(lambda: _world_status(live)["tick"] > 0, describe="the world ticking")
+        os.kill(world_pid, signal.SIGSTOP)
+        up.send_signal(signal.SIGTERM)
+        _, stderr = up.communicate(timeout=120)
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.communicate()
+    assert up.returncode == 0, stderr
+    assert "did not end within" not in stderr
+    world_log = (out / "logs" / "world.log").read_text(encoding="utf-8")
+    assert "world ended at t = " in world_log and "final summary written" in world_log
+    assert json.loads((out / "summary.json").read_text(encoding="utf-8"))["duration_s"] > 0.0
+
+
 def test_a_stopped_router_is_continued_with_the_pid_swarm_fault_names(
     live_swarm: LiveSwarm,
 ) -> None:
