@@ -1036,7 +1036,9 @@ class WorldProcess:
                 log.info(
                     "world ended at t = %.3f s: %s",
                     self.engine.t_s,
-                    "final summary written" if final_written else "final summary NOT written",
+                    "final summary written"
+                    if final_written
+                    else "final summary could not be written",
                 )
                 self._session = self._events_pub = None
                 token.undeclare()
