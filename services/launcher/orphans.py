@@ -39,6 +39,14 @@ def end_with_the_launcher() -> None:
         )
         return
     if str(os.getppid()) != launcher_pid:  # it ended before the request was in place
+        log.warning(
+            "$%s names launcher %s, and this process's parent is %d: that launcher has "
+            "ended, so this process ends too (unset %s to run a command on its own)",
+            LAUNCHER_PID_ENV,
+            launcher_pid,
+            os.getppid(),
+            LAUNCHER_PID_ENV,
+        )
         os.kill(os.getpid(), signal.SIGTERM)
 
 
