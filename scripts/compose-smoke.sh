@@ -18,7 +18,8 @@
 #      error < 5 cm for 3 s, no collision); after `docker compose kill robot2` the world sees
 #      robot2 leave, it stays down and the others keep going; after `docker compose restart
 #      robot2` it is live again and back under 5 cm; the dashboard prints a viewer URL with
-#      ?url= and its web viewer answers HTTP 200 (when this checkout has `swarm dashboard`);
+#      ?url= , its web viewer answers HTTP 200 and its gRPC data port answers HTTP/2 (when
+#      this checkout has `swarm dashboard`);
 #      `docker compose stop` ends the world with status 0 and a final summary.json of more than
 #      20 s without collisions. The checks are `python -m tests.support.compose_checks`, run on
 #      the host from .venv; they ask the world over Zenoh through the router's published port;
@@ -718,7 +719,7 @@ check_rejoin() {
 }
 
 check_dashboard() {
-    step "check: the dashboard prints its viewer URL and serves the viewer"
+    step "check: the dashboard prints its viewer URL and serves the viewer and its data"
     if [ "$HAVE_DASHBOARD" != 1 ]; then
         note "skipped: no 'swarm dashboard' command in this checkout"
         return
@@ -737,6 +738,10 @@ check_dashboard() {
     note "viewer URL in the log: $url"
     checks viewer "http://127.0.0.1:$SWARM_WEB_PORT/" --timeout 10 \
         || fail "the web viewer on 127.0.0.1:$SWARM_WEB_PORT (see above)"
+    # The viewer's data: the dashboard's gRPC server, listening on every interface of its
+    # container (`--bind 0.0.0.0`), reached through the port published on the host's loopback.
+    checks grpc "127.0.0.1:$SWARM_GRPC_PORT" --timeout 10 \
+        || fail "the dashboard's gRPC data port 127.0.0.1:$SWARM_GRPC_PORT (see above)"
 }
 
 check_stop() {

@@ -6,6 +6,7 @@
     python -m tests.support.compose_checks rejoin    --connect EP --robot R [--hold S ...]
     python -m tests.support.compose_checks final     --connect EP
     python -m tests.support.compose_checks viewer    URL [--timeout S]
+    python -m tests.support.compose_checks grpc      HOST:PORT [--timeout S]
     python -m tests.support.compose_checks summary   SUMMARY_JSON [--min-duration S]
 
 The swarm checks ask the world for its admin status (`swarm/<swarm>/admin/world/status`,
@@ -25,7 +26,10 @@ reply as `WorldStatusReply` (robot_firmware/net/messages.py):
   (--timeout counts from the start of the check);
 * final: the world answers and reports no collision.
 
-`viewer` checks that the web viewer answers HTTP 200; `summary` prints the figures of a world's
+`viewer` checks that the web viewer answers HTTP 200; `grpc` that the dashboard's data port
+answers the HTTP/2 preface with a SETTINGS frame, as a gRPC server does (through Docker's
+published port, a server listening on the container's loopback only is connected and then cut
+off: a TCP connection alone proves nothing); `summary` prints the figures of a world's
 summary.json and, with --min-duration, judges it (ran longer than that, no collision).
 
 Progress lines are indented; a failed check ends with one "CHECK FAILED: ..." line. Exit status
@@ -39,6 +43,7 @@ import argparse
 import json
 import math
 import os
+import socket
 import sys
 import threading
 import time
@@ -407,6 +412,60 @@ def check_viewer(
     print(f"    the web viewer answers at {url} (HTTP 200)")
 
 
+HTTP2_CLIENT_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+HTTP2_FRAME_HEADER_BYTES = 9
+HTTP2_SETTINGS = 0x4
+HTTP2_EMPTY_SETTINGS_FRAME = bytes([0, 0, 0, HTTP2_SETTINGS, 0, 0, 0, 0, 0])
+
+
+def http2_answer_problem(address: tuple[str, int], timeout_s: float) -> str | None:
+    """None when the server at `address` answers an HTTP/2 client preface with a SETTINGS
+    frame (what a gRPC server sends first); otherwise what happened instead."""
+    header = b""
+    try:
+        with socket.create_connection(address, timeout=timeout_s) as connection:
+            connection.settimeout(timeout_s)
+            connection.sendall(HTTP2_CLIENT_PREFACE + HTTP2_EMPTY_SETTINGS_FRAME)
+            while len(header) < HTTP2_FRAME_HEADER_BYTES:
+                chunk = connection.recv(HTTP2_FRAME_HEADER_BYTES - len(header))
+                if not chunk:
+                    return f"the connection closed after {len(header)} bytes"
+                header += chunk
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    if header[3] != HTTP2_SETTINGS:
+        return f"the answer began {header.hex()}, not with an HTTP/2 SETTINGS frame"
+    return None
+
+
+def check_grpc(
+    address: tuple[str, int],
+    timeout_s: float,
+    problem_of: Callable[[tuple[str, int], float], str | None] = http2_answer_problem,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> None:
+    problems: list[str | None] = []
+
+    def answers() -> bool:
+        problems.append(problem_of(address, 5.0))
+        return problems[-1] is None
+
+    where = f"{address[0]}:{address[1]}"
+    try:
+        wait_for(answers, timeout_s, 0.5, describe=where, clock=clock, sleep=sleep)
+    except AssertionError as exc:
+        raise CheckFailedError(f"no gRPC server at {where} ({problems[-1]})") from exc
+    print(f"    a gRPC (HTTP/2) server answers at {where}")
+
+
+def _host_port(text: str) -> tuple[str, int]:
+    host, colon, port = text.rpartition(":")
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not HOST:PORT")
+    return host, int(port)
+
+
 # -- summary.json -------------------------------------------------------------------------------
 
 
@@ -549,6 +608,9 @@ def build_parser() -> argparse.ArgumentParser:
     viewer = sub.add_parser("viewer", help="the web viewer answers HTTP 200")
     viewer.add_argument("url")
     timeout(viewer, 10.0)
+    grpc = sub.add_parser("grpc", help="a gRPC (HTTP/2) server answers at HOST:PORT")
+    grpc.add_argument("address", type=_host_port, metavar="HOST:PORT")
+    timeout(grpc, 10.0)
     summary = sub.add_parser("summary", help="the figures of a world's summary.json")
     summary.add_argument("path", type=Path)
     summary.add_argument(
@@ -606,6 +668,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.check == "viewer":
             check_viewer(args.url, args.timeout)
+        elif args.check == "grpc":
+            check_grpc(args.address, args.timeout)
         elif args.check == "summary":
             report_summary(args.path, args.min_duration)
         else:

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import http.server
 import json
+import socket
+import subprocess
+import sys
+import threading
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 import pytest
 
 from robot_firmware.net.messages import WorldStatusReply
+from tests.integration.conftest import free_port
 from tests.support.compose_checks import (
     CheckFailedError,
     FormationHold,
@@ -17,16 +23,20 @@ from tests.support.compose_checks import (
     after_kill_problems,
     check_final,
     check_gone,
+    check_grpc,
     check_live,
     check_rejoin,
     check_viewer,
     format_figure_m,
     hold_formation,
+    http2_answer_problem,
     main,
     position_error_m,
     read_world_status,
 )
 from tests.support.fake_clock import FakeClock
+
+ROOT = Path(__file__).resolve().parents[2]
 
 ROBOTS = ("robot1", "robot2", "robot3")
 
@@ -312,6 +322,67 @@ def test_viewer_waits_for_http_200() -> None:
         check_viewer("http://127.0.0.1:1/", 2.0, lambda url, t: 404, clock, clock.sleep)
 
 
+def test_a_rerun_grpc_server_answers_the_http2_preface() -> None:
+    """The check against the real thing: Rerun's gRPC server, as the dashboard serves it."""
+    port = free_port()
+    with subprocess.Popen(
+        [sys.executable, "-c", RERUN_GRPC_SERVER, str(port)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    ) as server:
+        try:
+            assert server.stdout is not None
+            assert server.stdout.readline().startswith("rerun+http://")
+            check_grpc(("127.0.0.1", port), 30.0)
+        finally:
+            server.kill()
+
+
+RERUN_GRPC_SERVER = """
+import sys, time
+import rerun as rr
+recording = rr.RecordingStream("compose-check")
+print(recording.serve_grpc(grpc_port=int(sys.argv[1]), server_memory_limit="10MB"), flush=True)
+time.sleep(60)
+"""
+
+
+class _Http1Handler(http.server.BaseHTTPRequestHandler):
+    def log_message(self, format: str, *args: object) -> None:
+        pass
+
+
+def test_what_is_not_a_grpc_server_is_named() -> None:
+    """Nothing listening; a listener that takes the connection and drops it (Docker's
+    published port in front of a server that listens on the container's loopback only); an
+    HTTP/1 server."""
+    port = free_port()
+    assert http2_answer_problem(("127.0.0.1", port), 2.0) == "Connection refused"
+    with socket.create_server(("127.0.0.1", 0)) as dropper:
+        address = dropper.getsockname()[:2]
+
+        def drop() -> None:
+            connection, _ = dropper.accept()
+            connection.close()
+
+        threading.Thread(target=drop, daemon=True).start()
+        assert http2_answer_problem(address, 5.0) in (  # reset: the preface was never read
+            "the connection closed after 0 bytes",
+            "Connection reset by peer",
+        )
+    with http.server.HTTPServer(("127.0.0.1", 0), _Http1Handler) as http1:
+        threading.Thread(target=http1.handle_request, daemon=True).start()
+        problem = http2_answer_problem(http1.server_address[:2], 5.0)  # type: ignore[arg-type]
+        assert problem is not None
+        assert problem.endswith("not with an HTTP/2 SETTINGS frame")
+    clock = FakeClock()
+    answers = iter(["Connection refused", None])
+    check_grpc(("h", 1), 10.0, lambda address, t: next(answers), clock, clock.sleep)
+    with pytest.raises(CheckFailedError, match=r"no gRPC server at h:1 \(Connection refused\)"):
+        check_grpc(("h", 1), 2.0, lambda address, t: "Connection refused", clock, clock.sleep)
+
+
 def write_summary(path: Path, **overrides: object) -> Path:
     summary: dict[str, object] = {
         "duration_s": 48.25,
@@ -381,6 +452,8 @@ def test_an_unreadable_summary_fails_without_a_traceback(
         ["live", "--connect", "tcp/127.0.0.1:1", "--robots", "robot1,robot1"],
         ["live"],
         ["teleport", "--connect", "tcp/127.0.0.1:1"],
+        ["grpc", "127.0.0.1"],
+        ["grpc", "127.0.0.1:0"],
     ],
 )
 def test_usage_errors_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
