@@ -26,9 +26,14 @@ back to Python every `STOP_POLL_S`.
 from __future__ import annotations
 
 import signal
+import sys
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from types import FrameType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sys import UnraisableHookArgs
 
 STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 """SIGHUP too: the terminal of `swarm up` closed; stop as for Ctrl-C rather than vanish."""
@@ -70,9 +75,30 @@ def wait_for_stop(stop: threading.Event, poll_s: float = STOP_POLL_S) -> None:
         pass
 
 
+IGNORED_INTERRUPT_REPORT = f"Signal {int(signal.SIGINT)} ignored due to race condition"
+"""What CPython reports, as an exception it cannot raise, for a SIGINT that landed while its
+handler was being set to SIG_IGN: a later Ctrl-C that `interrupt_once` means to ignore."""
+
+
 def _interrupt_once(_signum: int, _frame: FrameType | None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise KeyboardInterrupt
+
+
+def _quiet_about_ignored_interrupts(
+    previous: Callable[[UnraisableHookArgs], object],
+) -> Callable[[UnraisableHookArgs], None]:
+    """An unraisable hook that drops CPython's report of a SIGINT ignored by a race (Ctrl-C
+    pressed again while `_interrupt_once` sets SIG_IGN: a traceback on the terminal for a
+    keypress meant to do nothing) and hands every other report to `previous`."""
+
+    def hook(unraisable: UnraisableHookArgs) -> None:
+        value = unraisable.exc_value
+        if isinstance(value, OSError) and str(value) == IGNORED_INTERRUPT_REPORT:
+            return
+        previous(unraisable)
+
+    return hook
 
 
 def interrupt_once() -> None:
@@ -83,6 +109,10 @@ def interrupt_once() -> None:
     second at most) before the interpreter exits.  A second Ctrl-C used to interrupt that,
     with a traceback from Python's exit or with the tuner's message lost.  SIGTERM and SIGKILL
     still end the process; a SIGINT the process was started ignoring stays ignored; a command
-    that installs its own stop handlers (`stop_on_signals`) replaces this one."""
+    that installs its own stop handlers (`stop_on_signals`) replaces this one.  A Ctrl-C that
+    lands while the handler is being set to SIG_IGN is one CPython reports on stderr, as a
+    traceback of an exception it cannot raise: that report is dropped
+    (`_quiet_about_ignored_interrupts`)."""
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        sys.unraisablehook = _quiet_about_ignored_interrupts(sys.unraisablehook)
         signal.signal(signal.SIGINT, _interrupt_once)

@@ -12,10 +12,16 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
-from services.stop_signals import STOP_SIGNALS, StopOnSignal
+from services.stop_signals import (
+    IGNORED_INTERRUPT_REPORT,
+    STOP_SIGNALS,
+    StopOnSignal,
+    _quiet_about_ignored_interrupts,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -178,3 +184,41 @@ def test_a_process_waiting_for_its_router_stops_on_a_signal(
     assert child.returncode == 0, output
     assert "stopped before a router let" in output, output
     assert "Traceback" not in output
+
+
+def _unraisable(value: BaseException) -> SimpleNamespace:
+    return SimpleNamespace(
+        exc_type=type(value), exc_value=value, exc_traceback=None, err_msg=None, object=None
+    )
+
+
+def test_a_ctrl_c_ignored_by_a_race_is_not_reported_and_every_other_report_is() -> None:
+    """CI once saw `swarm tune`, Ctrl-C pressed again and again, print CPython's traceback of
+    "OSError: Signal 2 ignored due to race condition": a SIGINT landed while the first one's
+    handler set SIGINT to SIG_IGN.  That report is dropped; any other goes on as before."""
+    passed_on: list[SimpleNamespace] = []
+    hook = _quiet_about_ignored_interrupts(passed_on.append)
+    hook(_unraisable(OSError(IGNORED_INTERRUPT_REPORT)))
+    assert passed_on == []
+    others = [
+        OSError("Signal 15 ignored due to race condition"),
+        OSError(28, "No space left on device"),
+        RuntimeError(IGNORED_INTERRUPT_REPORT),
+    ]
+    for value in others:
+        hook(_unraisable(value))
+    assert [report.exc_value for report in passed_on] == others
+
+
+def test_interrupt_once_installs_the_quiet_hook_in_front_of_the_one_before() -> None:
+    code = (
+        "import sys\n"
+        "from services.stop_signals import interrupt_once\n"
+        "before = sys.unraisablehook\n"
+        "interrupt_once()\n"
+        "print(sys.unraisablehook is not before, sys.unraisablehook.__qualname__)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60
+    )
+    assert result.stdout.split() == ["True", "_quiet_about_ignored_interrupts.<locals>.hook"]
