@@ -219,6 +219,13 @@ def test_interrupt_once_installs_the_quiet_hook_in_front_of_the_one_before() -> 
         "print(sys.unraisablehook is not before, sys.unraisablehook.__qualname__)\n"
     )
     result = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+        # as from a terminal: a shell's background job starts with SIGINT ignored, which
+        # interrupt_once leaves as it is
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     assert result.stdout.split() == ["True", "_quiet_about_ignored_interrupts.<locals>.hook"]
