@@ -779,7 +779,7 @@ def test_the_launcher_reports_stops_and_continues_made_outside_it(live_swarm: Li
     live.wait_for(lambda: _stopped(live, "robot2") is False, describe="robot2 shown running")
     stopped = live.cli("fault", "stop", "robot3")
     assert stopped.returncode == 0, stopped.stderr
-    assert _stopped(live, "robot3") is True
+    live.wait_for(lambda: _stopped(live, "robot3"), describe="robot3 shown stopped")
     os.kill(processes["robot3"]["pid"], signal.SIGCONT)
     live.wait_for(lambda: _stopped(live, "robot3") is False, describe="robot3 shown running")
 
