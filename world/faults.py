@@ -37,7 +37,11 @@ tested alone (tests/world/test_faults.py); world/runtime.py does the I/O:
   forwards register faults to the robot's `fault` verb and process faults to the launcher's
   verbs, and records `fault_injected` or `fault_refused`, with the reason the forwarded-to
   process gave (a robot without the verb answers `unknown_verb`; no answer at all is
-  `unreachable`).  In lockstep it makes process faults deterministic: it waits for the
+  `unreachable`).  In real time a forwarded fault does not hold the world's loop: the request
+  goes out, the ticks go on, and at each tick boundary `poll` records and answers the faults
+  whose answer came (a frozen or slow robot, or a frozen launcher, used to stop every robot's
+  sense messages for as long as the world waited for it).  In lockstep it makes process faults
+  deterministic: it waits for the
   launcher's reply while the world holds the tick, drops a killed or stopped robot's seat at
   that tick itself, and after a restart holds the tick until the new process's liveliness token
   is seen, then joins it at that tick (the `settle` step, after the reply went out); a robot
@@ -64,6 +68,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
+from robot_firmware.net.answers import DeferredAnswer, PendingAnswer
 from robot_firmware.net.messages import (
     AdminError,
     AdminRefusal,
@@ -463,6 +468,9 @@ class FaultPort(Protocol):
         """Send an admin request and wait for its answer (serving the world's own queries
         meanwhile); None when nobody answered."""
 
+    def ask_later(self, target: str, verb: str, body: bytes, timeout_s: float) -> PendingAnswer:
+        """Send an admin request and return at once; its answer comes into the result."""
+
     def send(self, target: str, verb: str, body: bytes) -> None:
         """Send an admin request and do not wait for an answer."""
 
@@ -529,6 +537,17 @@ def check_fault(fault: Fault, robots: Sequence[str]) -> AdminError | None:
     return None
 
 
+@dataclass
+class _Forward:
+    """A fault forwarded in real time whose answer the hub has not had yet."""
+
+    fault: Fault
+    source: Source
+    target: str
+    answer: PendingAnswer
+    deferred: DeferredAnswer
+
+
 class FaultHub:
     """Injects faults at a tick boundary and records them (module docstring)."""
 
@@ -536,11 +555,18 @@ class FaultHub:
         self.robots = tuple(robots)
         self.port = port
         self._settle = _Settle()
+        self._forwards: list[_Forward] = []
+
+    @property
+    def forwards_waiting(self) -> int:
+        """Faults forwarded in real time whose answer has not come yet."""
+        return len(self._forwards)
 
     # -- entry points ----------------------------------------------------------------------
 
-    def request(self, body: bytes) -> FaultReply | AdminError:
-        """The world's admin verb `fault`: one fault as JSON."""
+    def request(self, body: bytes) -> FaultReply | AdminError | DeferredAnswer:
+        """The world's admin verb `fault`: one fault as JSON; a fault forwarded in real time
+        is answered once the robot or the launcher has (`poll`)."""
         try:
             fault: Fault = FAULT_ADAPTER.validate_json(body)
         except ValidationError as exc:
@@ -551,8 +577,9 @@ class FaultHub:
             return refusal
         return self.inject(fault, "admin")
 
-    def inject(self, fault: Fault, source: Source) -> FaultReply | AdminError:
-        """Apply or forward one fault now, and record what became of it."""
+    def inject(self, fault: Fault, source: Source) -> FaultReply | AdminError | DeferredAnswer:
+        """Apply or forward one fault now, and record what became of it (in real time, for a
+        forwarded fault, when `poll` finds its answer)."""
         refusal = check_fault(fault, self.robots)
         if refusal is not None:
             self._record_refusal(fault, source, refusal)
@@ -590,9 +617,41 @@ class FaultHub:
                 "fault_refused", "world", {"reason": refusal.reason, "error": refusal.error}
             )
 
+    def poll(self) -> None:
+        """Real time: record and answer each forwarded fault whose answer came, or never will.
+        The world's loop calls it at every tick boundary, so a robot or a launcher that does
+        not answer holds nobody's sense messages back."""
+        waiting: list[_Forward] = []
+        for forward in self._forwards:
+            done, payload = forward.answer.result()
+            if not done:
+                waiting.append(forward)
+                continue
+            outcome = self._forwarded(
+                forward.fault, forward.source, forward.target, payload, forward.answer.waited_s()
+            )
+            forward.deferred.complete(outcome)
+        self._forwards = waiting
+
     # -- kinds -----------------------------------------------------------------------------
 
-    def _forward_register(self, fault: Fault, source: Source) -> FaultReply | AdminError:
+    def _forward(
+        self, fault: Fault, source: Source, target: str, verb: str, body: bytes
+    ) -> FaultReply | AdminError | DeferredAnswer:
+        """Ask `target` to carry the fault out: in lockstep while the world holds the tick, in
+        real time without holding it (`poll`)."""
+        if self.port.lockstep:
+            return self._forwarded(
+                fault, source, target, self.port.ask(target, verb, body, FORWARD_TIMEOUT_S)
+            )
+        pending = self.port.ask_later(target, verb, body, FORWARD_TIMEOUT_S)
+        forward = _Forward(fault, source, target, pending, DeferredAnswer())
+        self._forwards.append(forward)
+        return forward.deferred
+
+    def _forward_register(
+        self, fault: Fault, source: Source
+    ) -> FaultReply | AdminError | DeferredAnswer:
         robot = fault_subjects(fault)[0]
         if robot not in self.port.live:
             refusal = AdminError(
@@ -601,10 +660,9 @@ class FaultHub:
             )
             self._record_refusal(fault, source, refusal)
             return refusal
-        reply = self.port.ask(robot, "fault", FAULT_ADAPTER.dump_json(fault), FORWARD_TIMEOUT_S)
-        return self._forwarded(fault, source, robot, reply)
+        return self._forward(fault, source, robot, "fault", FAULT_ADAPTER.dump_json(fault))
 
-    def _process(self, fault: Fault, source: Source) -> FaultReply | AdminError:
+    def _process(self, fault: Fault, source: Source) -> FaultReply | AdminError | DeferredAnswer:
         process = fault_subjects(fault)[0]
         verb = fault.fault
         body = ProcessRequest(process=process).to_json_bytes()
@@ -618,8 +676,7 @@ class FaultHub:
                 self._settle.world_death = True
             self.port.send("launcher", verb, body)
             return FaultReply(event=event)
-        reply = self.port.ask("launcher", verb, body, FORWARD_TIMEOUT_S)
-        outcome = self._forwarded(fault, source, "launcher", reply)
+        outcome = self._forward(fault, source, "launcher", verb, body)
         if isinstance(outcome, FaultReply) and self.port.lockstep and process in self.robots:
             self._seat_after(process, verb)
         return outcome
@@ -649,11 +706,12 @@ class FaultHub:
         source: Source,
         target: str,
         payload: bytes | None,
+        waited_s: float | None = None,
     ) -> FaultReply | AdminError:
         if payload is None:
+            waited = "" if waited_s is None else f" (gave up after {waited_s:.1f} s)"
             refusal = AdminError(
-                error=f"{target} did not answer within {FORWARD_TIMEOUT_S:.0f} s",
-                reason=AdminRefusal.UNREACHABLE,
+                error=f"{target} did not answer{waited}", reason=AdminRefusal.UNREACHABLE
             )
             self._record_refusal(fault, source, refusal)
             return refusal

@@ -80,6 +80,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -97,6 +98,7 @@ from pydantic import (
 )
 
 from robot_firmware.net.admin import AdminQueue, Handler
+from robot_firmware.net.answers import PendingAnswer
 from robot_firmware.net.frames import claimed_sender
 from robot_firmware.net.keys import SwarmKeys, check_name
 from robot_firmware.net.messages import (
@@ -316,6 +318,12 @@ def new_epoch(avoid: object = None) -> int:
 def _overloaded_on_purpose(telemetry: TelemetryMessage) -> bool:
     """Whether the robot reports a `tick_slow` register fault (a deliberate CPU overload)."""
     return any(label.split("(", 1)[0] == "tick_slow" for label in telemetry.register_faults)
+
+
+def _take_answer(pending: PendingAnswer, reply: zenoh.Reply) -> None:
+    """A zenoh callback: a good answer into `pending`."""
+    if reply.ok is not None:
+        pending.on_answer(bytes(reply.ok.payload.to_bytes()))
 
 
 def _ignore_reply(_reply: zenoh.Reply) -> None:
@@ -1428,6 +1436,7 @@ class WorldProcess:
         while (entry := self.schedule.next_due(self.engine.t_ns)) is not None:
             log.info("campaign: %s at t = %.3f s", entry.fault.fault, self.engine.t_s)
             self.faults.inject(entry.fault, "schedule")
+        self.faults.poll()
         if self._fault_admin.pending:
             self._fault_admin.serve(self.admin_handlers())
         self.faults.settle()
@@ -1443,27 +1452,28 @@ class WorldProcess:
     def ask(self, target: str, verb: str, body: bytes, timeout_s: float) -> bytes | None:
         """One admin request to another process, answered while this world serves its own
         queries; None without an answer."""
+        pending = self.ask_later(target, verb, body, timeout_s)
+        while not self.stop.is_set():
+            done, payload = pending.result()
+            if done:
+                return payload
+            self.stop.wait(0.002)
+            self._serve_queries()
+        return None
+
+    def ask_later(self, target: str, verb: str, body: bytes, timeout_s: float) -> PendingAnswer:
+        """One admin request to another process, not waited for (world/faults.py `poll`)."""
+        pending = PendingAnswer(timeout_s)
         if self._session is None:
-            return None
-        replies: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
-
-        def on_reply(reply: zenoh.Reply) -> None:  # a zenoh callback: queue and return
-            if reply.ok is not None:
-                replies.put(bytes(reply.ok.payload.to_bytes()))
-
+            pending.on_end()
+            return pending
         self._session.get(
             self.keys.admin(target, verb),
-            zenoh.handlers.Callback(on_reply, lambda: replies.put(None)),
+            zenoh.handlers.Callback(partial(_take_answer, pending), pending.on_end),
             payload=body,
             timeout=timeout_s,
         )
-        deadline = time.monotonic() + timeout_s + 1.0
-        while time.monotonic() < deadline and not self.stop.is_set():
-            try:
-                return replies.get(timeout=0.01)
-            except queue.Empty:
-                self._serve_queries()
-        return None
+        return pending
 
     def send(self, target: str, verb: str, body: bytes) -> None:
         if self._session is not None:

@@ -9,6 +9,10 @@ ones, and a handler that fails is answered with an `AdminError` too (logged, nev
 `AdminCounters` counts the answers, and the refusals per `AdminRefusal` reason; a handler
 refuses a bad request itself, so `handler_failed` (the safety net) stays at zero unless a
 handler has a bug.
+
+A handler that cannot answer at once returns a `DeferredAnswer`
+(robot_firmware/net/answers.py): `serve` keeps the query and answers it when the handler's owner
+calls `complete`.
 """
 
 from __future__ import annotations
@@ -20,11 +24,13 @@ import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TypeVar
 
 import zenoh
 from pydantic import BaseModel
 
+from robot_firmware.net.answers import DeferredAnswer
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import AdminError, AdminRefusal, parse_reply
 from robot_firmware.net.session import open_client
@@ -32,8 +38,10 @@ from swarm_config.credentials import ProcessCredentials
 
 log = logging.getLogger("swarm.admin")
 
-Handler = Callable[[bytes], BaseModel]
 R = TypeVar("R", bound=BaseModel)
+
+
+Handler = Callable[[bytes], BaseModel | DeferredAnswer]
 
 
 @dataclass
@@ -107,10 +115,23 @@ class AdminQueue:
                 return served
             verb = SwarmKeys.last_chunk(str(query.key_expr))
             body = query.payload.to_bytes() if query.payload is not None else b""
-            reply = answer(handlers, verb, body, self.counters)
-            query.reply(query.key_expr, reply.model_dump_json().encode())
+            reply = _reply(handlers, verb, body)
+            if isinstance(reply, DeferredAnswer):
+                reply.bind(partial(self._answer_later, query))
+            else:
+                self._count(reply)
+                query.reply(query.key_expr, reply.model_dump_json().encode())
             served += 1
         return served
+
+    def _count(self, reply: BaseModel) -> None:
+        count_answer(self.counters, reply)
+
+    def _answer_later(self, query: zenoh.Query, reply: BaseModel) -> None:
+        """A `DeferredAnswer` completed: answer the query it kept, and end it."""
+        self._count(reply)
+        query.reply(query.key_expr, reply.model_dump_json().encode())
+        query.drop()
 
 
 def answer(
@@ -118,17 +139,23 @@ def answer(
     verb: str,
     body: bytes,
     counters: AdminCounters | None = None,
-) -> BaseModel:
-    """The reply to one admin request (pure but for `counters`: what `serve` sends back)."""
+) -> BaseModel | DeferredAnswer:
+    """The reply to one admin request (pure but for `counters`: what `serve` sends back, or
+    the `DeferredAnswer` it keeps the query for)."""
     reply = _reply(handlers, verb, body)
-    if counters is not None:
-        counters.answered += 1
-        if isinstance(reply, AdminError):
-            counters.refused[reply.reason] += 1
+    if counters is not None and not isinstance(reply, DeferredAnswer):
+        count_answer(counters, reply)
     return reply
 
 
-def _reply(handlers: Mapping[str, Handler], verb: str, body: bytes) -> BaseModel:
+def count_answer(counters: AdminCounters, reply: BaseModel) -> None:
+    """One answer sent, into `counters`."""
+    counters.answered += 1
+    if isinstance(reply, AdminError):
+        counters.refused[reply.reason] += 1
+
+
+def _reply(handlers: Mapping[str, Handler], verb: str, body: bytes) -> BaseModel | DeferredAnswer:
     handler = handlers.get(verb)
     if handler is None:
         return AdminError(

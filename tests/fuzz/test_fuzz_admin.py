@@ -22,9 +22,11 @@ from typing import Any
 
 import pytest
 import yaml
+from pydantic import BaseModel
 
 from robot_firmware.control.fuzzy_parameters import FuzzyParameters
-from robot_firmware.net.admin import AdminCounters, Handler, answer
+from robot_firmware.net.admin import AdminCounters, Handler, answer, count_answer
+from robot_firmware.net.answers import DeferredAnswer
 from robot_firmware.net.messages import AdminError, AdminRefusal
 from services.launcher.launcher import Launcher, LaunchPlan
 from swarm_config.radio import PROFILES
@@ -54,14 +56,22 @@ def fuzz_verb(
     bodies: Iterator[bytes],
     state: Callable[[], object],
     defect: Callable[[], str | None] = lambda: None,
+    settle: Callable[[], None] | None = None,
 ) -> AdminCounters:
     """Answer every body; refusals must leave `state()` as it was, and after an accepted one
-    `defect()` (what is wrong with the state it left, if anything) must be None."""
+    `defect()` (what is wrong with the state it left, if anything) must be None.  An answer
+    given later (`DeferredAnswer`) must be there once `settle()` ran."""
     counters = AdminCounters()
     defects: Counter[str] = Counter()
     for body in bodies:
         before = state()
-        reply = answer(handlers, verb, body, counters)
+        given = answer(handlers, verb, body, counters)
+        if isinstance(given, DeferredAnswer):
+            assert settle is not None, (verb, body[:200])
+            settle()
+            assert given.answer is not None, (verb, body[:200])
+            count_answer(counters, given.answer)
+        reply = given if isinstance(given, BaseModel) else given.answer
         reply.model_dump_json()  # what `serve` sends back
         if isinstance(reply, AdminError):
             assert reply.reason in REASONS and reply.error, reply
@@ -294,6 +304,7 @@ def test_world_fault_requests() -> None:
         "fault",
         _bodies(9, lambda rng: _fault_request(rng, names)),
         state,
+        settle=world.faults.poll,
     )
     assert counters.refused[AdminRefusal.INVALID_REQUEST] > 0
     assert counters.refused[AdminRefusal.UNKNOWN_ROBOT] > 0

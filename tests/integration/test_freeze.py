@@ -115,3 +115,42 @@ def test_frozen_follower_is_seen_gone_and_comes_back_without_a_restart(
     assert (leader["role"], leader["term"]) == ("leader", 0)
     # The others went round its stopped body, and it came back round them.
     assert in_formation["metrics"]["collisions"] == 0
+
+
+def _log_from(live: LiveSwarm, name: str, offset: int) -> str:
+    return (live.out / "logs" / f"{name}.log").read_text(errors="replace")[offset:]
+
+
+def test_a_fault_forwarded_to_a_frozen_robot_holds_no_other_robot_back(
+    live_swarm: LiveSwarm,
+) -> None:
+    """Before, the world waited for the frozen robot's answer at its tick boundary (until the
+    router dropped that robot's session, about a second): no sense message went to anyone in
+    that time, and robot1 and robot3 stopped their motors.  Now the ticks go on and the
+    refusal comes when the forward ends."""
+    live = live_swarm
+    processes = live.all_running()["processes"]
+    live.wait_for(lambda: len(_world(live).get("live", ())) == len(ROBOTS))
+    others = [name for name in ROBOTS if name != FROZEN]
+    live.wait_for(
+        lambda: all(_query(live, name, "status").get("localised") for name in others),
+        describe="the other robots localised",
+    )
+    safe_stops = {name: _query(live, name, "status")["safe_stops"] for name in others}
+    offsets = {name: len(_log_from(live, name, 0)) for name in others}
+    pid = processes[FROZEN]["pid"]
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        fault = live.cli(
+            "fault", "pwm-stuck", FROZEN, "--wheel", "0", "--duty", "0.5", "--timeout", "15"
+        )
+        time.sleep(1.0)  # sense messages a second on: the other robots still hear the world
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    answer = fault.stdout + fault.stderr
+    assert fault.returncode != 0, answer
+    assert f"{FROZEN} did not answer" in answer, answer
+    for name in others:
+        log = _log_from(live, name, offsets[name])
+        assert "no sense message" not in log, f"{name} lost its sense messages:\n{log}"
+        assert _query(live, name, "status")["safe_stops"] == safe_stops[name]
