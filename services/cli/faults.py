@@ -94,8 +94,8 @@ FAULT_HELP: dict[str, FaultHelp] = {
         "loss, delay, jitter or bursts on all links, one robot's or one link",
         "Change the radio medium on every link (no --robot, no --link), on every link to or "
         "from one robot (--robot) or on one link in both directions (--link A,B): loss, "
-        "latency, jitter or Gilbert-Elliott bursts. Fields not given keep the scenario's "
-        "profile; `swarm fault heal` undoes it.",
+        "latency, jitter or Gilbert-Elliott bursts. Fields not given keep the radio profile in "
+        "effect (the scenario's, or the last `swarm net set`); `swarm fault heal` undoes it.",
         "Frames arrive late or not at all. Receivers drop frames older than the decoder's age "
         "window and hold a silent peer as a stopped body; a leader unheard for 0.5 s is taken "
         "for dead and a follower takes over; when it is heard again the higher term wins.",
@@ -110,7 +110,9 @@ FAULT_HELP: dict[str, FaultHelp] = {
     ),
     "heal": FaultHelp(
         "undo every network fault",
-        "Undo every network fault: partitions gone, every link back to the scenario's profile.",
+        "Undo every network fault: every partition and every `swarm fault net` override of "
+        "the links is cleared, so every link is back to the radio profile in effect (the "
+        "scenario's, or the last `swarm net set`, which heal keeps).",
         "Frames flow again; robots that elected a leader of their own step down to the highest "
         "term and rejoin their slots.",
     ),

@@ -10,6 +10,7 @@ import argparse
 import errno
 import json
 import os
+import re
 import sys
 import threading
 import time
@@ -32,9 +33,12 @@ from swarm_config.atomic_files import FileWriteError
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
     CREDENTIALS_FILE_ENV,
+    DASHBOARD,
     HOW_TO_GET_CREDENTIALS,
     OPERATOR,
     PRIVATE_DIR_MODE,
+    ROUTER,
+    SERVICE_IDENTITIES,
     CredentialsError,
     ProcessCredentials,
     read_credentials,
@@ -204,6 +208,7 @@ def _cmd_credentials(args: argparse.Namespace) -> int:
     directory = Path(args.dir)
     lock = None
     if directory.is_dir():  # a directory a live `swarm up` writes into is left alone
+        prepare_output_folder(directory, "DIR")  # one line naming DIR, before its lock file
         try:
             lock = RunDirectoryLock.acquire(directory, "credentials directory", "DIR")
         except RunDirectoryBusyError as exc:
@@ -596,6 +601,9 @@ def _ask_if_answered(
         check_name("process", target)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    problem = _target_problem(target, verb)
+    if problem is not None:
+        raise UsageError(problem)
     swarm = _swarm(args)
     endpoint = _endpoints(args.connect)[0]
     credentials = _operator_credentials(args.credentials)
@@ -611,6 +619,30 @@ def _ask_if_answered(
             "(give that run's operator credentials with --credentials), or its router is "
             "stopped (`swarm fault stop router`: continue it with `kill -CONT` and its pid)"
         ) from None
+
+
+ANSWERS_NO_ADMIN = {
+    ROUTER: "the router answers no admin requests; `swarm status` shows it (pid, restarts, "
+    "log) and `swarm kill|restart router` act on it",
+    DASHBOARD: "the dashboard answers no admin requests; `swarm status` shows it (pid, "
+    "restarts, log) and `swarm kill|restart dashboard` act on it",
+    OPERATOR: "operator is the identity of this command line, not a process of the swarm",
+}
+"""What to say of a swarm process that serves no admin verb (only robots, the world and the
+launcher do), instead of waiting for an answer that cannot come."""
+ROBOT_VERBS = ("regs", "params")
+"""Admin verbs only a robot serves."""
+
+
+def _target_problem(target: str, verb: str) -> str | None:
+    """Why `target` cannot answer `verb`, when the command line knows it without asking: a
+    service process without admin verbs, or a robot's verb sent to a service (no robot may
+    take a service's name: swarm_config/credentials.py)."""
+    if target in ANSWERS_NO_ADMIN:
+        return ANSWERS_NO_ADMIN[target]
+    if verb in ROBOT_VERBS and target in SERVICE_IDENTITIES:
+        return f"{target} is not a robot: only a robot answers `{verb}` (e.g. robot1)"
+    return None
 
 
 def _print_reply(payload: bytes) -> int:
@@ -777,26 +809,34 @@ def _router_pid(args: argparse.Namespace) -> int | None:
     return status.processes["router"].pid
 
 
+NET_FIELD_FLAGS = (("latency_ms", "--latency-ms"), ("jitter_ms", "--jitter-ms"), ("loss", "--loss"))
+"""The fields of the running link profile `swarm net set` changes, and their flags."""
+
+
 def _cmd_net(args: argparse.Namespace) -> int:
+    """`net get`, or `net set` of a named profile or of some fields of the running one; a
+    combination the world would not apply as given is refused before anything is sent."""
+    fields = {key: getattr(args, key) for key, _ in NET_FIELD_FLAGS}
+    given = [flag for key, flag in NET_FIELD_FLAGS if fields[key] is not None]
     body: bytes | None = None
-    if args.action == "set":
-        if args.profile:
-            changes: dict[str, object] = {"profile": args.profile}
-        else:
-            changes = {
-                key: value
-                for key, value in (
-                    ("latency_ms", args.latency_ms),
-                    ("jitter_ms", args.jitter_ms),
-                    ("loss", args.loss),
-                )
-                if value is not None
-            }
-            if not changes:
-                raise UsageError(
-                    "give --profile or at least one of --latency-ms, --jitter-ms, --loss"
-                )
-        body = json.dumps(changes).encode()
+    if args.action == "get":
+        if args.profile is not None or given:
+            flags = ["--profile"] * (args.profile is not None) + given
+            raise UsageError(
+                f"net get takes no {', '.join(flags)}: `swarm net set` changes the profile"
+            )
+    elif args.profile is not None:
+        if given:
+            raise UsageError(
+                f"give either --profile or {', '.join(given)}, not both: `net set --profile "
+                f"{args.profile}` then `net set {given[0]} X` gives that profile with its field "
+                "changed"
+            )
+        body = json.dumps({"profile": args.profile}).encode()
+    elif given:
+        body = json.dumps({k: v for k, v in fields.items() if v is not None}).encode()
+    else:
+        raise UsageError("give --profile or at least one of --latency-ms, --jitter-ms, --loss")
     return _print_reply(_ask(args, "world", "net", body))
 
 
@@ -849,26 +889,71 @@ def _cmd_params(args: argparse.Namespace) -> int:
             body = read_input_file(Path(args.file), "fuzzy parameter file", PARAMS_FILE_BYTES_MAX)
         except SettingsError as exc:
             raise UsageError(str(exc)) from None
+        if _holds_no_yaml(body):  # sent, it would be the robot's "show them" request
+            raise UsageError(
+                f"{args.file}: fuzzy parameter file is empty (only blanks or comments): "
+                "nothing sent; without FILE `swarm params` shows the robot's parameters"
+            )
     return _print_reply(_ask(args, args.robot, "params", body))
+
+
+def _holds_no_yaml(data: bytes) -> bool:
+    """Whether a YAML file is empty to its parser: nothing, or only blank and comment lines
+    (a line whose first non-blank character is # is a comment wherever it stands)."""
+    lines = data.removeprefix(b"\xef\xbb\xbf").splitlines()
+    return all(not line.strip() or line.lstrip().startswith(b"#") for line in lines)
+
+
+ADMIN_TIMEOUT_MAX_S = 86_400.0
+"""The longest --timeout of a command that asks the swarm: one day.  Zenoh takes no time-out
+past about 1e19 s (`ValueError: negative timeout`, a traceback), and no answer is worth more."""
+
+
+def _admin_timeout(text: str) -> float:
+    """--timeout of the commands that ask a running swarm, for argparse's `type=`: seconds
+    above 0 and at most `ADMIN_TIMEOUT_MAX_S`."""
+    seconds = positive_seconds(text)
+    if seconds > ADMIN_TIMEOUT_MAX_S:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is more than one day: give at most {ADMIN_TIMEOUT_MAX_S:,.0f} seconds"
+        )
+    return seconds
 
 
 BUS_WORD_MAX = 0xFFFF_FFFF
 """The largest address and word of the robots' 32-bit register bus."""
 
 
+BUS_WORD_FORMS = (
+    "decimal digits without a leading 0 (e.g. 4096) or 0x and hex digits (e.g. 0xFF200000)"
+)
+"""The forms an address or value of `swarm regs` takes, for its messages."""
+_BUS_WORD = re.compile(r"0|[1-9][0-9]*|0[xX][0-9A-Fa-f]+")
+"""Those forms, ASCII only: no sign, space, `_`, 0b/0o, leading 0 (octal to devmem and C)
+or other digits, all of which Python's `int(text, 0)` took."""
+
+
 def _bus_word(text: str) -> int:
-    """An address or a value of one 32-bit bus access (0x... for hex)."""
-    try:
-        number = int(text, 0)
-    except ValueError:
+    """An address or a value of one 32-bit bus access: `BUS_WORD_FORMS`."""
+    shown = repr(text) if len(text) <= 40 else f"{text[:32]!r}... ({len(text)} characters)"
+    digits = text.removeprefix("-")
+    if not _BUS_WORD.fullmatch(digits) or (digits != text and _word(digits) == 0):
         raise argparse.ArgumentTypeError(
-            f"{text!r} is not an integer (use 0x... for hex)"
-        ) from None
-    if not 0 <= number <= BUS_WORD_MAX:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} does not fit the 32-bit bus (0x0 to 0x{BUS_WORD_MAX:X})"
+            f"{shown} is not an integer of the accepted forms: {BUS_WORD_FORMS}"
         )
-    return number
+    if digits != text or _word(digits) > BUS_WORD_MAX:
+        raise argparse.ArgumentTypeError(
+            f"{shown} does not fit the 32-bit bus (0x0 to 0x{BUS_WORD_MAX:X})"
+        )
+    return _word(digits)
+
+
+def _word(digits: str) -> int:
+    """The number of a `_BUS_WORD` match; a decimal too long to fit 32 bits is counted as
+    one past them (Python refuses to convert one of over 4,300 digits)."""
+    if digits[1:2] in ("x", "X"):
+        return int(digits, 16)
+    return int(digits) if len(digits) <= len(str(BUS_WORD_MAX)) else BUS_WORD_MAX + 1
 
 
 def _process_name(text: str) -> str:
@@ -992,10 +1077,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         credentials_option(p, f", else {DEFAULT_OPERATOR_CREDENTIALS} when it exists")
         p.add_argument(
             "--timeout",
-            type=positive_seconds,
+            type=_admin_timeout,
             default=3.0,
             metavar="S",
-            help="seconds to wait for the answer (default: 3)",
+            help="seconds to wait for the answer, above 0 and at most "
+            f"{ADMIN_TIMEOUT_MAX_S:,.0f} (one day; default: 3)",
         )
         if suppress_defaults:
             for action in p._actions:
@@ -1152,12 +1238,15 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         help="show or change the radio medium's link profile while the swarm runs",
         description=(
             "`swarm net get` prints the running link profile; `swarm net set` changes it: "
-            "--profile NAME (ideal, lab, lossy, bursty) or any of --latency-ms, --jitter-ms, "
-            "--loss. An invalid request is refused and the running profile stays."
+            "either --profile NAME (ideal, lab, lossy, bursty) switches to a named profile, or "
+            "any of --latency-ms, --jitter-ms, --loss change those fields of the running one, "
+            "not both (`net set --profile NAME` then `net set --loss X` gives the named profile "
+            "with its loss changed). An invalid request is refused and the running profile "
+            "stays."
         ),
     )
     net.add_argument("action", choices=["get", "set"])
-    net.add_argument("--profile", help="a named profile")
+    net.add_argument("--profile", metavar="NAME", help="switch to a named profile")
     net.add_argument("--latency-ms", type=float, metavar="MS", help="mean one-way delay, ms")
     net.add_argument(
         "--jitter-ms", type=float, metavar="MS", help="delay spread: uniform in mean +- this, ms"
@@ -1172,7 +1261,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         description=(
             "With only ROBOT, dump every register by name (stored bits, no side effects). With "
             "ADDR, do one bus read; with ADDR and VALUE, one bus write. Addresses and values "
-            "take 0x... hex. A refused access is reported as the bus error it is."
+            f"are {BUS_WORD_FORMS}, up to 0x{BUS_WORD_MAX:X}; nothing else (no sign, "
+            "spaces, _, 0b or 0o). A refused access is reported as the bus error "
+            "it is."
         ),
     )
     regs.add_argument("robot")

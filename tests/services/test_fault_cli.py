@@ -398,3 +398,19 @@ def test_a_world_that_does_not_answer_is_explained_from_the_launchers_status(
     assert cli.main(["fault", "heal", "--timeout", "0.1"]) == cli.EXIT_USAGE
     err = capsys.readouterr().err
     assert said in err and "start one with" not in err, err
+
+
+@pytest.mark.parametrize("name", ["heal", "net"])
+def test_heal_and_net_help_say_the_running_profile_stays(
+    capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    # Before, it said "back to the scenario's profile", but heal clears only the faults and
+    # keeps the profile of the last `swarm net set`.
+    with pytest.raises(SystemExit) as exited:
+        cli.main(["fault", name, "--help"])
+    assert exited.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "scenario's profile" not in text
+    assert "the radio profile in effect (the scenario's, or the last `swarm net set`" in text
+    if name == "heal":
+        assert "every partition and every `swarm fault net` override" in text

@@ -1,5 +1,6 @@
 """Output folders (services/output_folder.py): made up front, or one line naming the option."""
 
+import errno
 import os
 import stat
 from pathlib import Path
@@ -85,3 +86,50 @@ def test_every_command_that_writes_a_folder_refuses_a_bad_one_in_one_line(
     expected = "cannot create the folder" if under_a_file else "exists and is not a folder"
     assert expected in lines[0]
     assert file.read_bytes() == b"kept"
+
+
+def test_a_folder_where_no_file_can_be_made_is_refused_and_left_empty(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A pseudo file system (sysfs) lets root pass access(2) and refuses every new file; before,
+    # the folder was taken and `swarm up` failed later on its lock file, status 1.
+    real_open = os.open
+
+    def refuse_new_files(path: str, flags: int, *rest: int, **kwargs: object) -> int:
+        if flags & os.O_CREAT and Path(path).parent == tmp_path:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+        return real_open(path, flags, *rest, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "open", refuse_new_files)
+    with pytest.raises(
+        OutputFolderError, match=r"^--out .*: cannot write in the folder \(Permission denied\)$"
+    ):
+        prepare_output_folder(tmp_path, "--out")
+    monkeypatch.undo()
+    assert prepare_output_folder(tmp_path, "--out") == tmp_path
+    assert list(tmp_path.iterdir()) == []  # the file made to check is gone
+
+
+SYSFS_FOLDER = Path("/sys/kernel/mm")
+
+
+@pytest.mark.skipif(
+    not (SYSFS_FOLDER.is_dir() and os.access(SYSFS_FOLDER, os.W_OK | os.X_OK)),
+    reason="needs a sysfs folder access(2) calls writable (as root)",
+)
+@pytest.mark.parametrize("command", ["up", "credentials"])
+def test_a_sysfs_folder_is_refused_naming_the_option_with_status_2(
+    capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    # Before: "swarm up: cannot write /sys/kernel/mm/.swarm-up.lock: Permission denied",
+    # status 1, where every other folder that cannot be written is named by its option, status 2.
+    argv = {
+        "up": ["up", "--no-dashboard", "--port", "9", "--out", str(SYSFS_FOLDER)],
+        "credentials": ["credentials", str(SYSFS_FOLDER)],
+    }[command]
+    option = "--out" if command == "up" else "DIR"
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [
+        f"swarm {command}: {option} {SYSFS_FOLDER}: cannot write in the folder (Permission denied)"
+    ], lines
