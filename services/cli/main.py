@@ -344,7 +344,7 @@ def _check_across_hosts(args: argparse.Namespace) -> None:
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
-    from services.launcher.launcher import Launcher, LaunchError, LaunchPlan
+    from services.launcher.launcher import Launcher, LaunchError, LaunchPlan, start_problem
     from swarm_config.scenario import load_scenario
     from world.runtime import WorldConfig
     from world.write_failures import EXIT_SUMMARY_NOT_WRITTEN
@@ -394,6 +394,14 @@ def _cmd_up(args: argparse.Namespace) -> int:
         link_listen=split_endpoints(args.listen) if args.listen else (),
         link_connect=split_endpoints(args.connect) if args.connect else (),
     )
+    try:
+        plan.check()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    problem = start_problem(plan)  # before the run folder is touched
+    if problem is not None:
+        print(f"swarm up: {problem}", file=sys.stderr)
+        return 1
     try:
         launcher = Launcher(plan)
     except (CredentialsError, TlsError, ValueError) as exc:

@@ -245,6 +245,19 @@ class LaunchPlan:
         return self.only is not None or bool(self.router_links)
 
     @property
+    def runs_dashboard(self) -> bool:
+        """Whether this host runs the dashboard (with the world, unless --no-dashboard)."""
+        return self.dashboard and self.runs_world
+
+    @property
+    def router_listen_endpoints(self) -> tuple[str, ...]:
+        """Where this host's router listens: the swarm's endpoint, and across hosts the
+        endpoints other hosts' routers link to."""
+        if self.across_hosts:
+            return (self.endpoint, *self.link_listen)
+        return (self.endpoint,)
+
+    @property
     def runs_world(self) -> bool:
         """Whether the world (and the dashboard) runs on this host."""
         return not self.link_connect
@@ -291,6 +304,45 @@ class LaunchPlan:
         """The Rerun web viewer's address with its data source filled in."""
         source = quote(f"rerun+http://127.0.0.1:{self.grpc_port}/proxy", safe="")
         return f"http://127.0.0.1:{self.web_port}/?url={source}"
+
+
+def start_problem(plan: LaunchPlan) -> str | None:
+    """Why `swarm up` of `plan` cannot start, seen from this host before anything is written or
+    started: an open-file limit too low for its router (services/launcher/open_files.py), an
+    endpoint the router cannot listen on, a dashboard port taken.  None when nothing is in the
+    way.  `swarm up` asks before it touches the run folder, and `Launcher.up` again just before
+    it starts the router."""
+    # The processes the router lets in: the launcher, the world, the robots, the dashboard.
+    clients = 1 + plan.runs_world + len(plan.started_robots) + plan.runs_dashboard
+    limit_problem = open_file_limit_problem(router_files_needed(clients))
+    if limit_problem is not None:
+        return (
+            f"{limit_problem} for {clients} processes, so nothing was started (raise it "
+            "with `ulimit -n`, or start fewer robots)"
+        )
+    for endpoint in plan.router_listen_endpoints:
+        problem = endpoint_listen_problem(endpoint)
+        if problem is not None:
+            flag = "--port N" if endpoint == plan.endpoint else "--listen ENDPOINT"
+            hint = (
+                f" (another program or swarm listens there; `swarm up {flag}` picks another)"
+                if problem.errno == errno.EADDRINUSE
+                else ""
+            )
+            return (
+                f"cannot listen on {endpoint}: {problem.strerror or problem}, so nothing was "
+                f"started{hint}"
+            )
+    if plan.runs_dashboard:
+        for flag, port in (("--web-port", plan.web_port), ("--grpc-port", plan.grpc_port)):
+            taken = bind_problem("0.0.0.0", port)
+            if taken is not None:
+                return (
+                    f"the dashboard cannot serve on port {port} ({flag}): "
+                    f"{taken.strerror or taken}, so nothing was started (give another "
+                    f"{flag}, or --no-dashboard to run without it)"
+                )
+    return None
 
 
 class Launcher:
@@ -355,7 +407,7 @@ class Launcher:
         if plan.across_hosts:
             self.tls = read_tls_files(tls_dir(self.credentials_dir)) if plan.uses_tls else None
             check_router_links(plan.link_connect, plan.link_listen, self.tls)
-            listen = [plan.endpoint, *plan.link_listen]
+            listen = list(plan.router_listen_endpoints)
             self._locks = self._lock_directories()  # before the first write
             logs.mkdir(parents=True, exist_ok=True)
             router_config = write_router_config(
@@ -376,7 +428,7 @@ class Launcher:
             logs.mkdir(parents=True, exist_ok=True)
             self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
             self.tls = self._tls_files() if plan.uses_tls else None
-            listen = [plan.endpoint]
+            listen = list(plan.router_listen_endpoints)
             router_config = write_router_config(
                 self.credentials_dir, self.credentials, listen, self.tls
             )
@@ -419,7 +471,7 @@ class Launcher:
         for name in plan.started_robots:
             argv = [*cli, "robot", "--name", name, "--scenario", scenario, *connect]
             self.children[name] = Child(name, argv, logs / f"{name}.log")
-        if plan.dashboard and plan.runs_world:
+        if plan.runs_dashboard:
             dashboard = [
                 *cli,
                 "dashboard",
@@ -617,41 +669,10 @@ class Launcher:
         (checked before it starts), exits before it lets the launcher in, or runs
         `ROUTER_LOGIN_TIMEOUT_S` without letting it in, and when the open-file limit is too
         low for the swarm (services/launcher/open_files.py)."""
-        clients = len(self.children)  # the launcher's, less the router, and the launcher
-        limit_problem = open_file_limit_problem(router_files_needed(clients))
-        if limit_problem is not None:
+        problem = start_problem(self.plan)
+        if problem is not None:
             self.shutdown()
-            raise LaunchError(
-                f"{limit_problem} for {clients} processes, so nothing was started (raise it "
-                "with `ulimit -n`, or start fewer robots)"
-            )
-        for endpoint in self.router_listen_endpoints:
-            problem = endpoint_listen_problem(endpoint)
-            if problem is not None:
-                self.shutdown()
-                flag = "--port N" if endpoint == self.plan.endpoint else "--listen ENDPOINT"
-                hint = (
-                    f" (another program or swarm listens there; `swarm up {flag}` picks another)"
-                    if problem.errno == errno.EADDRINUSE
-                    else ""
-                )
-                raise LaunchError(
-                    f"cannot listen on {endpoint}: {problem.strerror or problem}, so nothing was "
-                    f"started{hint}"
-                )
-        if "dashboard" in self.children:
-            for flag, port in (
-                ("--web-port", self.plan.web_port),
-                ("--grpc-port", self.plan.grpc_port),
-            ):
-                taken = bind_problem("0.0.0.0", port)
-                if taken is not None:
-                    self.shutdown()
-                    raise LaunchError(
-                        f"the dashboard cannot serve on port {port} ({flag}): "
-                        f"{taken.strerror or taken}, so nothing was started (give another "
-                        f"{flag}, or --no-dashboard to run without it)"
-                    )
+            raise LaunchError(problem)
         self.start("router")
         try:
             opened = self._launcher_session()

@@ -375,21 +375,37 @@ def test_swarm_up_with_stdout_on_a_full_device_runs_to_its_end(tmp_path: Path) -
     assert summary["duration_s"] == pytest.approx(2.0)
 
 
+def _files_of(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
 def test_swarm_up_on_a_taken_port_says_so_and_starts_nothing_else(tmp_path: Path) -> None:
-    # Before, the launcher waited forever for a router that had died, deaf to Ctrl-C.
+    """Before, the launcher waited forever for a router that had died, deaf to Ctrl-C; and
+    then, refusing in one line, it had already written the run folder: a new folder came with
+    credentials, a scenario copy and logs/, and an earlier run's folder lost its checkpoints
+    and credentials."""
+    earlier = tmp_path / "earlier"
+    first = _lockstep_run(earlier, 1)
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert list((earlier / "checkpoints").iterdir())
+    files = _files_of(earlier)
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        out = tmp_path / "up"
-        refused = swarm_cli("up", "--no-dashboard", "--out", str(out), "--port", str(port))
-    assert refused.returncode == 1, refused.stderr
-    assert refused.stderr == (
-        f"swarm up: cannot listen on tcp/127.0.0.1:{port}: Address already in use, so nothing "
-        "was started (another program or swarm listens there; `swarm up --port N` picks "
-        "another)\n"
-    )
-    assert list((out / "logs").iterdir()) == []
+        refused = {
+            out: swarm_cli("up", "--no-dashboard", "--out", str(out), "--port", str(port))
+            for out in (tmp_path / "new", earlier)
+        }
+    for out, result in refused.items():
+        assert result.returncode == 1, (out, result.stderr)
+        assert result.stderr == (
+            f"swarm up: cannot listen on tcp/127.0.0.1:{port}: Address already in use, so "
+            "nothing was started (another program or swarm listens there; `swarm up --port N` "
+            "picks another)\n"
+        )
+    assert not (tmp_path / "new").exists()
+    assert _files_of(earlier) == files
 
 
 def _listens(port: int) -> bool:
@@ -755,7 +771,7 @@ def test_swarm_up_with_its_dashboards_port_taken_says_so_and_starts_nothing(
         f"swarm up: the dashboard cannot serve on port {web_port} (--web-port): Address already"
     ), refused.stderr
     assert "--no-dashboard to run without it" in refused.stderr
-    assert list((out / "logs").iterdir()) == []
+    assert not out.exists()  # nothing written, as for a taken --port
 
 
 def _stopped(live_swarm: LiveSwarm, name: str) -> bool | None:
