@@ -50,11 +50,14 @@ class StopOnSignal:
         self.stop = stop
         self.requested = False
         """A stop signal came (set by the first; later ones change nothing)."""
+        self.signum: int | None = None
+        """The first stop signal's number, None while none came."""
 
     def __call__(self, signum: int, frame: FrameType | None) -> None:
         if self.requested:
             return
         self.requested = True
+        self.signum = signum
         threading.Thread(target=self.stop.set, name="stop-signal", daemon=True).start()
 
 

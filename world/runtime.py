@@ -1052,6 +1052,12 @@ class WorldProcess:
                 token.undeclare()
         return 0 if final_written else EXIT_SUMMARY_NOT_WRITTEN
 
+    @property
+    def ran_to_its_end(self) -> bool:
+        """Whether the run reached its duration (False for a run without one)."""
+        end = self._end_tick()
+        return end is not None and self.tick >= end
+
     def _end_tick(self) -> int | None:
         if self.config.duration_s is None:
             return None

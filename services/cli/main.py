@@ -22,13 +22,18 @@ from pydantic import BaseModel
 
 from robot_firmware.net.keys import check_name
 from robot_firmware.net.session import DEFAULT_ENDPOINT, SessionOpenError, split_endpoints
-from services.launcher.orphans import end_with_the_launcher
+from services.launcher.orphans import LAUNCHER_PID_ENV, end_with_the_launcher
 from services.log_setup import LogLevelError, set_up_logging
 from services.output_folder import OutputFolderError, prepare_output_folder
 from services.path_arguments import empty_path_problem
 from services.real_time_hold import real_time_shortfalls
 from services.standard_output import guard_standard_output
-from services.stop_signals import EXIT_INTERRUPTED, interrupt_once, stop_on_signals
+from services.stop_signals import (
+    EXIT_INTERRUPTED,
+    StopOnSignal,
+    interrupt_once,
+    stop_on_signals,
+)
 from swarm_config.atomic_files import FileWriteError
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
@@ -126,10 +131,10 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
-def _install_stop(stop: threading.Event) -> None:
+def _install_stop(stop: threading.Event) -> StopOnSignal:
     """SIGTERM, SIGINT and SIGHUP set `stop` (services/stop_signals.py: without a deadlock
-    when they come in a burst)."""
-    stop_on_signals(stop)
+    when they come in a burst); the handler says which came first."""
+    return stop_on_signals(stop)
 
 
 def _cmd_router(args: argparse.Namespace) -> int:
@@ -161,8 +166,20 @@ def _cmd_world(args: argparse.Namespace) -> int:
     if problem is not None:
         raise UsageError(problem)
     world = WorldProcess(config, scenario)
-    _install_stop(world.stop)
-    return world.run()
+    stopped_by = _install_stop(world.stop)
+    code = world.run()
+    if (
+        code == 0
+        and stopped_by.signum is not None
+        and not world.ran_to_its_end
+        and os.environ.get(LAUNCHER_PID_ENV)
+    ):
+        # Under `swarm up`, a world a signal ended before its run did says so by its status
+        # (128 + the signal, as a shell reports it): from outside the launcher, that is a
+        # death, and the launcher starts it again.  On its own, and under compose, whose
+        # `stop` is a SIGTERM, the world's end is the run's: status 0.
+        return 128 + stopped_by.signum
+    return code
 
 
 def _cmd_robot(args: argparse.Namespace) -> int:

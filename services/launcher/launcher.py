@@ -89,6 +89,7 @@ from services.router.access import (
     endpoint_host,
     write_router_config,
 )
+from services.stop_signals import STOP_SIGNALS
 from swarm_config.credentials import (
     CREDENTIALS_DIR_NAME,
     CREDENTIALS_FILE_ENV,
@@ -742,9 +743,11 @@ class Launcher:
         """The run's exit status when the world has ended it, else None.
 
         A clean exit (status 0, or EXIT_SUMMARY_NOT_WRITTEN: the run ended but the final
-        summary could not be written) ends the run; a world killed through `kill` stays down until
-        `restart`; any other exit is a death: the world is started again (it resumes from its
-        checkpoint), unless it died `WORLD_MAX_QUICK_DEATHS` times in a row at its start.
+        summary could not be written) ends the run; a world killed through `kill` stays down
+        until `restart`; any other exit is a death, a stop signal from outside the launcher
+        (`kill PID`: status 128 + the signal) included: the world is started again (it resumes
+        from its checkpoint), unless it died `WORLD_MAX_QUICK_DEATHS` times in a row at its
+        start.
         Without a world on this host (it runs elsewhere), None."""
         world = self.children.get("world")
         if world is None:
@@ -759,7 +762,16 @@ class Launcher:
         if self.world_quick_deaths >= WORLD_MAX_QUICK_DEATHS:
             log.error("the world died %d times at its start; ending", self.world_quick_deaths)
             return exit_code
-        log.warning("the world exited (%d); restarting it", exit_code)
+        signum = exit_code - 128
+        if signum in STOP_SIGNALS:
+            log.warning(
+                "the world was stopped by %s from outside this launcher, before the run's end; "
+                "restarting it (it resumes from its checkpoint; Ctrl-C here ends the run, "
+                "`swarm fault kill world` keeps it down)",
+                signal.Signals(signum).name,
+            )
+        else:
+            log.warning("the world exited (%d); restarting it", exit_code)
         self.restart("world")
         return None
 

@@ -638,6 +638,30 @@ def test_killed_robot_leaves_and_a_restarted_one_comes_back(live_swarm: LiveSwar
     assert unknown.returncode == 1 and "no process 'robot7'" in unknown.stdout
 
 
+def test_a_world_stopped_from_outside_the_launcher_is_started_again(live_swarm: LiveSwarm) -> None:
+    """`kill PID` of the world (SIGTERM from a user or a service manager, not the launcher).
+    Before, the world wrote its final summary and exited 0, which the launcher took for the
+    run's end: `swarm up` ended at once with status 0, the run cut short without a word.  Now
+    it is a death like a `kill -9`: the launcher starts the world again, and it resumes."""
+    live = live_swarm
+    processes = live.all_running()["processes"]
+    live.wait_for(lambda: _world_status(live)["tick"] > 100, describe="world time")
+    old_pid = processes["world"]["pid"]
+    os.kill(old_pid, signal.SIGTERM)
+
+    def restarted_world() -> dict[str, Any] | None:
+        assert live.process.poll() is None, "swarm up ended: the run was cut short"
+        world = _launcher_status(live).get("processes", {}).get("world")
+        return world if world and world["running"] and world["pid"] != old_pid else None
+
+    world = live.wait_for(restarted_world, describe="the world started again")
+    assert world["restarts"] == 1 and not world["killed"]
+    assert live.process.poll() is None  # the run goes on
+    live.wait_for(lambda: _world_status(live)["tick"] > 0, describe="the new world")
+    log = (live.out / "logs" / "world.log").read_text()
+    assert "resuming from checkpoint" in log, log[-2000:]
+
+
 # Paced at (at most) one simulated second per wall second: an unpaced lockstep world and its
 # robots take all the CPU they can get, which starves the `swarm restart` command on a loaded
 # host; pacing changes no result, only how long the run takes.
