@@ -48,6 +48,7 @@ from robot_firmware.control.formation import follower_slot_in_world
 from robot_firmware.control.trajectories import PolylineTrajectory
 from swarm_config.body import BodyParams
 from swarm_config.scenario import (
+    MAX_TICKS,
     PolylineSpec,
     Scenario,
     ScenarioError,
@@ -356,6 +357,41 @@ def _check_request(
         raise ScenarioGenerationError(f"--duration must be > 0 s, got {request.duration_s}")
 
 
+def _check_written_values(
+    request: GenerateRequest, size_m: float, speed_mps: float, control_period_s: float
+) -> None:
+    """Refuse, naming the flag, a value that the file's fixed decimals would turn into one the
+    scenario cannot hold: a duration under one control period or over the tick limit, a size
+    or a path rate that rounds to 0 (a speed of 1e-7 m/s wrote `angular_rate_radps: 0.0`, and
+    the lap's period divided by it)."""
+    duration_s = float(_number(request.duration_s, 3))
+    if duration_s < control_period_s:
+        raise ScenarioGenerationError(
+            f"--duration must be at least one control period ({control_period_s:g} s; the file "
+            f"keeps 3 decimals), got {request.duration_s:g}"
+        )
+    if duration_s / control_period_s > MAX_TICKS:
+        raise ScenarioGenerationError(
+            f"--duration must be at most {MAX_TICKS * control_period_s:g} s (ten million "
+            f"control periods of {control_period_s:g} s), got {request.duration_s:g}"
+        )
+    if float(_number(size_m, 4)) <= 0.0:
+        raise ScenarioGenerationError(
+            f"--size-m must be at least 0.0001 m (the file keeps 4 decimals), got {size_m:g}"
+        )
+    if request.trajectory == "polyline":
+        slowest_mps, written = 1e-4, float(_number(speed_mps, 4))
+    else:  # the file holds the angular rate, 6 decimals: speed / size (circle), / √2·size
+        per_rate = size_m if request.trajectory == "circle" else math.sqrt(2.0) * size_m
+        slowest_mps, written = 1e-6 * per_rate, float(_number(speed_mps / per_rate, 6))
+    if written <= 0.0:
+        raise ScenarioGenerationError(
+            f"--speed-mps {speed_mps:g} is too slow for a {request.trajectory} of "
+            f"{_number(size_m, 4)} m: it rounds to a standstill in the file; give at least "
+            f"{slowest_mps:.2g} m/s"
+        )
+
+
 def command_line(
     request: GenerateRequest, spacing_m: float, size_m: float, speed_mps: float, name: str
 ) -> str:
@@ -386,6 +422,7 @@ def generate_scenario_text(request: GenerateRequest) -> str:
     defaults = TRAJECTORY_DEFAULTS[request.trajectory]
     size_m = request.size_m if request.size_m is not None else max(defaults.size_m, extent_m)
     speed_mps = request.speed_mps if request.speed_mps is not None else defaults.speed_mps
+    _check_written_values(request, size_m, speed_mps, controller.control_period_s)
 
     header = [
         f"# {request.formation.capitalize()} of {request.robots} robots, written by",

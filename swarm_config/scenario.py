@@ -48,13 +48,20 @@ from swarm_config.faults import (
 )
 from swarm_config.metrics import MetricsConfig
 from swarm_config.radio import PROFILES, LinkProfile
-from swarm_config.sensors import POSITIONING_RANGE_M, PositioningParams, SonarParams
+from swarm_config.sensors import (
+    MIN_RATE_HZ,
+    POSITIONING_RANGE_M,
+    PositioningParams,
+    SonarParams,
+)
 from swarm_config.settings import (
     DEFAULT_SCENARIO_PATH as DEFAULT_SCENARIO_PATH,  # re-exported: importers know it from here
 )
 from swarm_config.settings import (
     ScenarioError,
     SettingsError,
+    boolean_number_problems,
+    describe_problems,
     describe_validation_error,
     parse_yaml,
     read_input_file,
@@ -62,6 +69,9 @@ from swarm_config.settings import (
 )
 
 FloatArray = NDArray[np.float64]
+
+MAX_TICKS = 10_000_000
+"""The most control periods a run may last (`duration_s / controller.control_period_s`)."""
 
 
 class _Strict(BaseModel):
@@ -183,7 +193,12 @@ class SensorsSpec(_Strict):
 class RadioSpec(_Strict):
     profile: str | LinkProfile = "ideal"
     """A named profile (ideal, lab, lossy, bursty) or an inline link profile."""
-    broadcast_rate_hz: PositiveFloat = 20.0
+    broadcast_rate_hz: float = Field(
+        default=20.0,
+        ge=MIN_RATE_HZ,
+        description=f"state broadcasts per second per robot, at least {MIN_RATE_HZ:g} Hz and at "
+        "most the control rate",
+    )
 
     @model_validator(mode="after")
     def _known_profile(self) -> RadioSpec:
@@ -255,7 +270,7 @@ class Scenario(_Strict):
                 f"duration_s ({self.duration_s:g} s) is shorter than one control period "
                 f"({self.controller.control_period_s:g} s): nothing would run"
             )
-        if ticks > 10_000_000:
+        if ticks > MAX_TICKS:
             raise ValueError("duration_s / control_period_s is over ten million ticks")
         known = set(names) | set(PROCESS_ROLES)
         for k, entry in enumerate(self.faults):
@@ -333,6 +348,9 @@ def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
     """Validate an already-parsed mapping; problems raise ScenarioError."""
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: a scenario must be a YAML mapping at the top level")
+    booleans = boolean_number_problems(Scenario, data)
+    if booleans:
+        raise ScenarioError(describe_problems(f"{source}: invalid scenario", booleans))
     try:
         return Scenario.model_validate(data)
     except ValidationError as exc:
@@ -398,6 +416,9 @@ def load_fuzzy_parameters(path: Path) -> FuzzyParameters:
     """Read and validate a fuzzy parameter file (YAML or JSON); problems raise ScenarioError."""
     try:
         data = read_yaml(path, "fuzzy parameter file")
+        booleans = boolean_number_problems(FuzzyParameters, data)
+        if booleans:
+            raise ScenarioError(describe_problems(f"{path}: invalid fuzzy parameters", booleans))
         return FuzzyParameters.model_validate(data)
     except SettingsError as exc:
         raise ScenarioError(f"fuzzy_parameter_file: {exc}") from None

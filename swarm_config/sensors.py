@@ -8,6 +8,16 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
+MIN_RATE_HZ = 0.01
+"""The lowest sensor, fix or broadcast rate a scenario may give: one per 100 s, longer than a
+run needs between two updates.  Slower rates drew periods too long for the simulators' integer
+tick and nanosecond counters (1e-17 Hz crashed `swarm sim` and `swarm tune` with an
+OverflowError)."""
+
+RATE_DESCRIPTION = (
+    f"updates per second, at least {MIN_RATE_HZ:g} Hz (one per {1 / MIN_RATE_HZ:g} s)"
+)
+
 
 class SonarParams(BaseModel):
     """The ultrasound ring (the paper's sonar IPs): cone, range limits, noise, update rate."""
@@ -18,7 +28,7 @@ class SonarParams(BaseModel):
     min_range_m: float = Field(default=0.02, ge=0.0)
     max_range_m: PositiveFloat = 3.0
     noise_std_m: float = Field(default=0.005, ge=0.0)
-    rate_hz: PositiveFloat = 20.0
+    rate_hz: float = Field(default=20.0, ge=MIN_RATE_HZ, description=RATE_DESCRIPTION)
 
 
 POSITIONING_RANGE_M = (2**31 - 1) / 1_000_000
@@ -35,4 +45,4 @@ class PositioningParams(BaseModel):
 
     position_noise_std_m: float = Field(default=0.001, ge=0.0)
     heading_noise_std_rad: float = Field(default=0.002, ge=0.0)
-    rate_hz: PositiveFloat = 20.0
+    rate_hz: float = Field(default=20.0, ge=MIN_RATE_HZ, description=RATE_DESCRIPTION)

@@ -11,9 +11,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Callable, Mapping
+import types
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Self
+from typing import Annotated, Any, ClassVar, Literal, Self, Union, get_args, get_origin
 
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError
@@ -47,6 +48,89 @@ def describe_validation_error(
     if count > PROBLEM_LINES_MAX:
         lines.append(f"  ... and {count - PROBLEM_LINES_MAX:,} more")
     return "\n".join(lines)
+
+
+def describe_problems(heading: str, problems: Sequence[str]) -> str:
+    """'heading (N problems):' then one line per problem, as `describe_validation_error`."""
+    count = len(problems)
+    lines = [f"{heading} ({count} problem{'s' if count != 1 else ''}):"]
+    lines += [f"  {problem}" for problem in problems[:PROBLEM_LINES_MAX]]
+    if count > PROBLEM_LINES_MAX:
+        lines.append(f"  ... and {count - PROBLEM_LINES_MAX:,} more")
+    return "\n".join(lines)
+
+
+def _members(annotation: object) -> list[object]:
+    """The types a field's annotation admits: Annotated unwrapped, unions flattened."""
+    origin = get_origin(annotation)
+    if origin is Annotated:
+        return _members(get_args(annotation)[0])
+    if origin is Union or origin is types.UnionType:
+        return [m for arg in get_args(annotation) for m in _members(arg)]
+    return [annotation]
+
+
+def _model_for(members: list[object], value: Mapping[str, object]) -> type[BaseModel] | None:
+    """The model among `members` that a mapping is for: the only one, or the one whose tag
+    fields (`kind: circle`, `fault: kill`) it matches."""
+    models = [m for m in members if isinstance(m, type) and issubclass(m, BaseModel)]
+    for model in models:
+        tags = {
+            name: get_args(field.annotation)
+            for name, field in model.model_fields.items()
+            if get_origin(field.annotation) is Literal
+        }
+        if len(models) == 1 or all(
+            name not in value or value[name] in allowed for name, allowed in tags.items()
+        ):
+            return model
+    return None
+
+
+def _booleans_in(annotation: object, value: object, where: str, problems: list[str]) -> None:
+    members = _members(annotation)
+    if isinstance(value, bool):
+        if bool not in members and Any not in members and any(m in (int, float) for m in members):
+            problems.append(f"{where}: a number, not {str(value).lower()}")
+        return
+    if isinstance(value, Mapping):
+        model = _model_for(members, value)
+        if model is not None:
+            _booleans_in_model(model, value, f"{where}.", problems)
+        return
+    if not isinstance(value, list | tuple):
+        return
+    for member in members:
+        if get_origin(member) not in (list, tuple, Sequence):
+            continue
+        args = get_args(member)
+        per_item = get_origin(member) is tuple and (len(args) != 2 or args[1] is not Ellipsis)
+        for i, item in enumerate(value):
+            if per_item and i >= len(args):
+                break
+            element = args[i] if per_item else (args[0] if args else Any)
+            _booleans_in(element, item, f"{where}.{i}", problems)
+        return
+
+
+def _booleans_in_model(
+    model: type[BaseModel], data: Mapping[str, object], prefix: str, problems: list[str]
+) -> None:
+    for key, value in data.items():
+        field = model.model_fields.get(key) if isinstance(key, str) else None
+        if field is not None:
+            _booleans_in(field.annotation, value, f"{prefix}{key}", problems)
+
+
+def boolean_number_problems(model: type[BaseModel], data: object) -> list[str]:
+    """'field.path: a number, not true' for every number field of `model` (nested models, lists
+    and tuples included) that `data` gives a YAML boolean: pydantic takes true for 1 and false
+    for 0 in an int or float field, so `seed: true` ran seed 1 and `duration_s: true` a 1 s run.
+    Fields that admit a boolean, and keys the model does not know, are left to the model."""
+    problems: list[str] = []
+    if isinstance(data, Mapping):
+        _booleans_in_model(model, data, "", problems)
+    return problems
 
 
 ENDPOINT_PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream")

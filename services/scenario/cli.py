@@ -14,6 +14,7 @@ command prints it in one line and exits with status 2, and no file is written.
 from __future__ import annotations
 
 import argparse
+import stat
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
@@ -56,6 +57,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     )
     text = generate_scenario_text(request)
     out = Path(args.out)
+    refuse_unusable_destination(out)
     if not args.force and out.is_file() and out.read_bytes() != text.encode("utf-8"):
         raise ScenarioGenerationError(
             f"--out {out} exists and holds another scenario; give --force to replace it, or "
@@ -67,11 +69,33 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def refuse_unusable_destination(path: Path) -> None:
+    """ScenarioGenerationError unless `path` is absent or a regular file: the write renames a
+    new file over it, which would replace a device node (as root, `--out /dev/null` deleted
+    the system's /dev/null), a FIFO or a socket, or a symbolic link (dangling or not), with a
+    regular file."""
+    if path.is_dir():
+        raise ScenarioGenerationError(f"--out {path} is a directory; give a file name")
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise ScenarioGenerationError(f"cannot write {path} ({exc.strerror})") from None
+    if stat.S_ISLNK(mode):
+        raise ScenarioGenerationError(
+            f"--out {path} is a symbolic link; give the file itself or another file name"
+        )
+    if not stat.S_ISREG(mode):
+        raise ScenarioGenerationError(
+            f"--out {path} exists and is not a regular file; give another file name"
+        )
+
+
 def write_text_file(path: Path, text: str) -> None:
     """Write `text` to `path` through a temporary file and a rename: a failed write leaves
     whatever was there before."""
-    if path.is_dir():
-        raise ScenarioGenerationError(f"--out {path} is a directory; give a file name")
+    refuse_unusable_destination(path)
     if not path.parent.is_dir():
         raise ScenarioGenerationError(f"cannot write {path} (no folder {path.parent})")
     try:
@@ -146,7 +170,8 @@ def add_scenario_parser(sub: Any) -> None:
         required=True,
         metavar="FILE",
         help="scenario file to write; an existing file is replaced only with --force (or when "
-        "it holds exactly what this command writes)",
+        "it holds exactly what this command writes); anything else that is there (a device, "
+        "a FIFO, a symbolic link) is refused",
     )
     generate.add_argument(
         "--force", action="store_true", help="replace --out even if it holds another scenario"

@@ -57,7 +57,7 @@ from services.stop_signals import EXIT_INTERRUPTED
 from services.tuner.checkpoint import CheckpointDamagedError
 from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
 from services.tuner.evaluation import ProgressCallback, snr_fitness_from_cost
-from services.tuner.fitness import evaluate_fitness
+from services.tuner.fitness import evaluate_fitness, evaluation_duration_problem
 from services.tuner.fuzzy_encoding import encode_default
 from services.tuner.fuzzy_tuning import (
     BEST_FUZZY_NAME,
@@ -191,9 +191,9 @@ def add_tune_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentPars
         type=float,
         default=None,
         metavar="S",
-        help="simulated seconds per evaluation; the fitness window keeps its share of the "
-        f"scenario's run (default: {DEFAULT_EVALUATION_DURATION_S:g}, or the scenario's "
-        "duration if shorter)",
+        help="simulated seconds per evaluation, from two control periods to ten million (as "
+        "`swarm sim --duration`); the fitness window keeps its share of the scenario's run "
+        f"(default: {DEFAULT_EVALUATION_DURATION_S:g}, or the scenario's duration if shorter)",
     )
     tune.add_argument("--resume", action="store_true", help="continue the runs checkpointed in DIR")
     tune.add_argument(
@@ -223,11 +223,13 @@ def run_tune(args: argparse.Namespace) -> int:
     try:
         algorithms = parse_algorithms(str(args.algo))
         scenario = load_scenario(scenario_path)
-        duration_s = (
-            min(DEFAULT_EVALUATION_DURATION_S, scenario.duration_s)
-            if args.duration is None
-            else float(args.duration)
-        )
+        if args.duration is None:
+            duration_s = min(DEFAULT_EVALUATION_DURATION_S, scenario.duration_s)
+        else:
+            duration_s = float(args.duration)
+            problem = evaluation_duration_problem(scenario, duration_s)
+            if problem is not None:
+                raise ValueError(f"--duration: {problem}")
         all_settings = [
             TuningSettings.create(scenario, name, int(args.budget), int(args.seed), duration_s)
             for name in algorithms

@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike
 from services.sim.batch import run_batch
 from services.tuner.evaluation import FloatArray, IntArray, Objective, snr_fitness_from_cost
 from services.tuner.fuzzy_encoding import decode
-from swarm_config.scenario import FitnessSpec, Scenario
+from swarm_config.scenario import MAX_TICKS, FitnessSpec, Scenario
 from world.metrics import FormationLayout
 
 DEFAULT_COLLISION_PENALTY = 1.0
@@ -104,17 +104,35 @@ def eq16_cost(
     return checked
 
 
+def evaluation_duration_problem(scenario: Scenario, duration_s: float) -> str | None:
+    """Why ``duration_s`` cannot be the simulated seconds of one evaluation of ``scenario``,
+    else None: not a positive number, shorter than two control periods, or over the scenario's
+    own tick limit (`MAX_TICKS` control periods, as `swarm sim --duration`; before, `swarm
+    tune --duration 1e9` was accepted and computed without end)."""
+    if not np.isfinite(duration_s) or duration_s <= 0.0:
+        return f"evaluation duration must be a positive number of seconds, got {duration_s}"
+    period_s = scenario.controller.control_period_s
+    if duration_s < 2.0 * period_s:
+        return f"evaluation duration {duration_s} s is shorter than two control periods"
+    if duration_s / period_s > MAX_TICKS:
+        return (
+            f"evaluation duration {duration_s:g} s is over ten million control periods of "
+            f"{period_s:g} s (at most {MAX_TICKS * period_s:g} s)"
+        )
+    return None
+
+
 def evaluation_scenario(scenario: Scenario, duration_s: float | None = None) -> Scenario:
     """The scenario a candidate is scored on: shortened to ``duration_s``, windows rescaled.
 
     The fuzzy scheduler is always enabled (it is what is being scored). Raises ValueError when
-    the duration is not positive or the fitness window would hold no sample.
+    the duration is not one an evaluation can last (`evaluation_duration_problem`) or the
+    fitness window would hold no sample.
     """
     duration = scenario.duration_s if duration_s is None else float(duration_s)
-    if not np.isfinite(duration) or duration <= 0.0:
-        raise ValueError(
-            f"evaluation duration must be a positive number of seconds, got {duration}"
-        )
+    problem = evaluation_duration_problem(scenario, duration)
+    if problem is not None:
+        raise ValueError(problem)
     share = duration / scenario.duration_s
     fitness_start = scenario.metrics.fitness_window_start_s * share
     if fitness_start >= duration:
@@ -123,9 +141,6 @@ def evaluation_scenario(scenario: Scenario, duration_s: float | None = None) -> 
             f"{scenario.metrics.fitness_window_start_s} s, not before the end of the run "
             f"({scenario.duration_s} s), so eq. 16 has no samples"
         )
-    period_s = scenario.controller.control_period_s
-    if duration < 2.0 * period_s:
-        raise ValueError(f"evaluation duration {duration} s is shorter than two control periods")
     controller = scenario.controller.model_copy(update={"fuzzy_enabled": True})
     metrics = scenario.metrics.model_copy(
         update={

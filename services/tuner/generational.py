@@ -234,7 +234,7 @@ def _resume(
     try:
         if problem is None:
             rng.bit_generator.state = dict(checkpoint.rng_state)
-    except (TypeError, ValueError, KeyError) as exc:  # numpy's refusal of a state not its own
+    except (TypeError, ValueError, KeyError, OverflowError) as exc:  # numpy refuses the state
         problem = f"rng_state: {type(exc).__name__}"
     if problem is not None:
         raise CheckpointDamagedError.at(checkpoint_path, problem)

@@ -1,5 +1,8 @@
 """`swarm scenario generate`: writes an ordinary scenario file; mistakes are one line, exit 2."""
 
+import os
+import socket
+import stat
 from pathlib import Path
 
 import pytest
@@ -98,3 +101,46 @@ def test_a_file_that_holds_another_scenario_is_replaced_only_with_force(
     generated = mine.read_bytes()
     assert main(args) == 0  # the same command again: the file already holds what it writes
     assert mine.read_bytes() == generated
+
+
+def _make_destination(kind: str, path: Path) -> None:
+    if kind == "device node":
+        try:
+            os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(1, 3))  # a /dev/null of its own
+        except PermissionError:
+            pytest.skip("making a device node needs root")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "socket":
+        with socket.socket(socket.AF_UNIX) as listener:
+            listener.bind(str(path))
+    elif kind == "dangling symlink":
+        path.symlink_to(path.parent / "nowhere" / "x.yaml")
+    else:
+        (path.parent / "target.yaml").write_text("# the link's target\n")
+        path.symlink_to(path.parent / "target.yaml")
+
+
+@pytest.mark.parametrize(
+    "kind", ["device node", "fifo", "socket", "dangling symlink", "symlink to a file"]
+)
+def test_an_out_that_is_not_a_regular_file_is_refused_and_left_as_it_was(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], kind: str
+) -> None:
+    # Before, the file was renamed over it: as root, `--out /dev/null` replaced the system's
+    # /dev/null with a regular file, and a FIFO or a symlink became a regular file, exit 0.
+    out = tmp_path / "out"
+    _make_destination(kind, out)
+    before = out.lstat()
+    for force in ([], ["--force"]):
+        assert main(["scenario", "generate", "--robots", "3", "--out", str(out), *force]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1, err
+        assert f"--out {out} " in err
+        after = out.lstat()
+        assert (after.st_mode, after.st_ino, after.st_size) == (
+            before.st_mode,
+            before.st_ino,
+            before.st_size,
+        )
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "target.yaml") == ["out"]

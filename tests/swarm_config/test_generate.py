@@ -217,3 +217,39 @@ def test_the_obstacle_count_that_fits_is_the_one_named() -> None:
     assert len(scenario.obstacles) == fitting
     with pytest.raises(ScenarioGenerationError):
         _generate(robots=4, obstacles=fitting + 1)
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        # Before: ZeroDivisionError (the angular rate was written as 0.0).
+        ({"speed_mps": 1e-7}, "--speed-mps 1e-07 is too slow for a circle of 1.5 m"),
+        (
+            {"trajectory": "lemniscate", "speed_mps": 1e-6},
+            "--speed-mps 1e-06 is too slow for a lemniscate",
+        ),
+        # Before: named trajectory.polyline.speed_mps, duration_s, trajectory.circle.radius_m.
+        ({"trajectory": "polyline", "speed_mps": 1e-5}, "--speed-mps 1e-05 is too slow"),
+        ({"duration_s": 1e-5}, "--duration must be at least one control period (0.01 s"),
+        ({"duration_s": 0.004}, "--duration must be at least one control period"),
+        ({"duration_s": 1e6}, "--duration must be at most 100000 s"),
+        ({"size_m": 1e-9}, "--size-m must be at least 0.0001 m"),
+    ],
+)
+def test_a_value_the_file_would_round_to_nothing_is_refused_naming_the_flag(
+    fields: dict[str, object], message: str
+) -> None:
+    with pytest.raises(ScenarioGenerationError) as caught:
+        generate_scenario_text(GenerateRequest(robots=3, **fields))  # type: ignore[arg-type]
+    assert message in str(caught.value)
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("trajectory", TRAJECTORIES)
+def test_a_speed_too_slow_for_the_file_names_the_slowest_that_is_not(trajectory: str) -> None:
+    with pytest.raises(ScenarioGenerationError, match=r"give at least (\S+) m/s") as caught:
+        generate_scenario_text(GenerateRequest(robots=3, trajectory=trajectory, speed_mps=1e-9))
+    match = re.search(r"give at least (\S+) m/s", str(caught.value))
+    assert match is not None
+    _, scenario = _generate(robots=3, trajectory=trajectory, speed_mps=float(match[1]))
+    assert scenario.trajectory.kind == trajectory

@@ -262,3 +262,71 @@ def test_a_scenario_whose_fuzzy_parameter_file_is_missing_is_not_copied(tmp_path
     with pytest.raises(ScenarioError, match="fuzzy_parameter_file"):
         snapshot_scenario(source, tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        ("radio", "broadcast_rate_hz"),
+        ("sensors", "sonar", "rate_hz"),
+        ("sensors", "positioning", "rate_hz"),
+    ],
+)
+@pytest.mark.parametrize("rate_hz", [1e-17, 1e-300, 0.0099])
+def test_a_rate_below_one_per_100_s_is_refused_naming_the_field(
+    path: tuple[str, ...], rate_hz: float
+) -> None:
+    # Before, it passed (> 0), and `swarm sim` / `swarm tune` crashed with an OverflowError
+    # on its period in ticks.
+    data = _paper_data()
+    node = data
+    for key in path[:-1]:
+        node = node.setdefault(key, {})
+    node[path[-1]] = rate_hz
+    with pytest.raises(ScenarioError) as refused:
+        parse_scenario(data, "slow.yaml")
+    assert f"{'.'.join(path)}: Input should be greater than or equal to 0.01" in str(refused.value)
+    node[path[-1]] = 0.01  # the slowest allowed
+    assert parse_scenario(data, "slow.yaml")
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        (lambda d: d.update(seed=True), "seed: a number, not true"),
+        (lambda d: d.update(duration_s=True), "duration_s: a number, not true"),
+        (lambda d: d["trajectory"].update(centre_m=[False, 0.0]), "trajectory.centre_m.0: "),
+        (lambda d: d["robots"][1]["slot"].update(angle_deg=True), "robots.1.slot.angle_deg: "),
+        (lambda d: d.update(controller={"kp": [4.0, True, 4.0]}), "controller.kp.1: a number"),
+        (lambda d: d.update(sensors={"sonar": {"rate_hz": True}}), "sensors.sonar.rate_hz: "),
+        (
+            lambda d: d.update(faults=[{"at_s": True, "fault": {"fault": "heal"}}]),
+            "faults.0.at_s: a number, not true",
+        ),
+    ],
+)
+def test_a_boolean_given_for_a_number_is_refused_naming_the_field(
+    change: Callable[[dict], None], named: str
+) -> None:
+    # Before, pydantic took true for 1 and false for 0: `seed: true` ran seed 1 and
+    # `duration_s: true` a 1 s run, without a word.
+    data = _paper_data()
+    change(data)
+    with pytest.raises(ScenarioError) as refused:
+        parse_scenario(data, "bool.yaml")
+    assert str(refused.value).startswith("bool.yaml: invalid scenario (1 problem):")
+    assert named in str(refused.value), refused.value
+
+
+def test_a_boolean_field_still_takes_a_boolean_and_a_fuzzy_file_refuses_one_for_a_centre(
+    tmp_path: Path,
+) -> None:
+    data = _paper_data()
+    data["trajectory"] = {"kind": "polyline", "waypoints_m": [[0, 0], [1, 0]], "closed": False}
+    assert parse_scenario(data).trajectory.closed is False  # type: ignore[union-attr]
+    fuzzy = tmp_path / "fuzzy.yaml"
+    fuzzy.write_text("error_centres: [false, true]\nrate_centres: [-1.0, 1.0]\n")
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(PAPER.read_text() + "\nfuzzy_parameter_file: fuzzy.yaml\n")
+    with pytest.raises(ScenarioError, match=r"error_centres\.0: a number, not false"):
+        load_rule_base(load_scenario(scenario))

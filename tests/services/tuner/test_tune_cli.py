@@ -2,6 +2,7 @@
 
 import argparse
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -16,6 +17,7 @@ import pytest
 from services.tuner import fuzzy_tuning
 from services.tuner.cli import TuneArgumentError, add_tune_parser, parse_algorithms, run_tune
 from services.tuner.evaluation import FloatArray, Objective
+from services.tuner.fitness import evaluation_scenario
 from services.tuner.fuzzy_tuning import read_convergence_csv, read_settings
 from swarm_config.scenario import (
     Scenario,
@@ -308,3 +310,77 @@ def test_resume_from_a_checkpoint_with_a_field_changed_is_one_line_and_status_2(
     assert status == 2
     assert f"{checkpoint} is damaged ({named}" in said, said
     assert (out / "best_fuzzy.yaml").read_bytes() == best_before
+
+
+@pytest.fixture(scope="module")
+def finished_ofa_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("finished") / "tune"
+    assert run_tune(tune_args("--scenario", str(PAPER), "--out", str(out), *TINY)) == 0
+    return out
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "named"),
+    [
+        ("best_cost", lambda a: np.array(np.inf), "best_cost: inf"),
+        ("best_cost", lambda a: np.array(0.0), "best_cost: 0.0"),
+        ("generation", lambda a: np.array([1, 2]), "generation: shape (2,)"),
+        ("history_best_cost", lambda a: a * 0.0, "history_best_cost: "),
+        (
+            "rng_state",
+            lambda a: np.array(
+                '{"bit_generator": "PCG64", "state": {"state": -1, "inc": 1}, '
+                '"has_uint32": 0, "uinteger": 0}'
+            ),
+            "rng_state: not a PCG64 state",
+        ),
+        ("history_n_evaluations", lambda a: a * 0 - 5, "history_n_evaluations: "),
+    ],
+)
+def test_resume_from_a_checkpoint_with_a_value_no_run_writes_is_one_line_and_status_2(
+    tmp_path: Path,
+    finished_ofa_run: Path,
+    field: str,
+    value: Callable[[Any], Any],
+    named: str,
+) -> None:
+    # Before: a traceback (best_cost, generation, history_best_cost, rng_state), or a resume
+    # that wrote convergence rows with -5 evaluations (history_n_evaluations).
+    out = tmp_path / "tune"
+    shutil.copytree(finished_ofa_run, out)
+    checkpoint = out / "ofa" / "checkpoint.npz"
+    with np.load(checkpoint, allow_pickle=False) as archive:
+        fields = {key: archive[key] for key in archive.files}
+    fields[field] = value(fields[field])
+    with checkpoint.open("wb") as handle:
+        np.savez(handle, **fields)
+    kept = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    resume = tune_args("--scenario", str(PAPER), "--out", str(out), "--resume", *TINY)
+    with pytest.raises(ValueError) as refused:  # the swarm command prints it, status 2
+        run_tune(resume)
+    said = str(refused.value)
+    assert f"{checkpoint} is damaged ({named}" in said, said
+    assert "\n" not in said
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == kept
+
+
+@pytest.mark.parametrize(
+    ("duration", "said"),
+    [
+        ("1e9", "--duration: evaluation duration 1e+09 s is over ten million control periods"),
+        ("100000.01", "(at most 100000 s)"),
+    ],
+)
+def test_a_duration_over_the_tick_limit_is_refused_naming_the_flag(
+    tmp_path: Path, duration: str, said: str
+) -> None:
+    # Before, it was accepted (`swarm sim` refuses it) and computed without end.
+    with pytest.raises(ValueError, match="over ten million control periods"):
+        evaluation_scenario(load_scenario(PAPER), float(duration))
+    out = tmp_path / "tune"
+    args = tune_args("--scenario", str(PAPER), "--out", str(out), "--budget", "3")
+    args.duration = float(duration)
+    with pytest.raises(TuneArgumentError) as refused:
+        run_tune(args)
+    assert said in str(refused.value)
+    assert not out.exists()
