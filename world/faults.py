@@ -464,11 +464,26 @@ class FaultPort(Protocol):
 
     def apply_network_fault(self, fault: NetworkFault) -> None: ...
 
-    def ask(self, target: str, verb: str, body: bytes, timeout_s: float) -> bytes | None:
+    def ask(
+        self,
+        target: str,
+        verb: str,
+        body: bytes,
+        timeout_s: float,
+        reply_by_unix_ns: int | None = None,
+    ) -> bytes | None:
         """Send an admin request and wait for its answer (serving the world's own queries
-        meanwhile); None when nobody answered."""
+        meanwhile), at most `timeout_s` and not past `reply_by_unix_ns` (the deadline of the
+        request that asked for it); None when nobody answered."""
 
-    def ask_later(self, target: str, verb: str, body: bytes, timeout_s: float) -> PendingAnswer:
+    def ask_later(
+        self,
+        target: str,
+        verb: str,
+        body: bytes,
+        timeout_s: float,
+        reply_by_unix_ns: int | None = None,
+    ) -> PendingAnswer:
         """Send an admin request and return at once; its answer comes into the result."""
 
     def send(self, target: str, verb: str, body: bytes) -> None:
@@ -564,9 +579,13 @@ class FaultHub:
 
     # -- entry points ----------------------------------------------------------------------
 
-    def request(self, body: bytes) -> FaultReply | AdminError | DeferredAnswer:
+    def request(
+        self, body: bytes, reply_by_unix_ns: int | None = None
+    ) -> FaultReply | AdminError | DeferredAnswer:
         """The world's admin verb `fault`: one fault as JSON; a fault forwarded in real time
-        is answered once the robot or the launcher has (`poll`)."""
+        is answered once the robot or the launcher has (`poll`).  A forward goes with the
+        request's own deadline, when it has one: its sender stops waiting then, and the robot
+        or the launcher must not carry out what the sender was told had no answer."""
         try:
             fault: Fault = FAULT_ADAPTER.validate_json(body)
         except ValidationError as exc:
@@ -575,9 +594,11 @@ class FaultHub:
             )
             self._record_refusal(None, "admin", refusal)
             return refusal
-        return self.inject(fault, "admin")
+        return self.inject(fault, "admin", reply_by_unix_ns)
 
-    def inject(self, fault: Fault, source: Source) -> FaultReply | AdminError | DeferredAnswer:
+    def inject(
+        self, fault: Fault, source: Source, reply_by_unix_ns: int | None = None
+    ) -> FaultReply | AdminError | DeferredAnswer:
         """Apply or forward one fault now, and record what became of it (in real time, for a
         forwarded fault, when `poll` finds its answer)."""
         refusal = check_fault(fault, self.robots)
@@ -588,8 +609,8 @@ class FaultHub:
             self.port.apply_network_fault(fault)
             return FaultReply(event=self._record_injected(fault, source))
         if fault.kind == "register":
-            return self._forward_register(fault, source)
-        return self._process(fault, source)
+            return self._forward_register(fault, source, reply_by_unix_ns)
+        return self._process(fault, source, reply_by_unix_ns)
 
     def settle(self) -> None:
         """Hold the tick for what the faults injected at it wait for (lockstep restarts: the
@@ -636,21 +657,26 @@ class FaultHub:
     # -- kinds -----------------------------------------------------------------------------
 
     def _forward(
-        self, fault: Fault, source: Source, target: str, verb: str, body: bytes
+        self,
+        fault: Fault,
+        source: Source,
+        target: str,
+        verb: str,
+        body: bytes,
+        reply_by_unix_ns: int | None,
     ) -> FaultReply | AdminError | DeferredAnswer:
         """Ask `target` to carry the fault out: in lockstep while the world holds the tick, in
         real time without holding it (`poll`)."""
         if self.port.lockstep:
-            return self._forwarded(
-                fault, source, target, self.port.ask(target, verb, body, FORWARD_TIMEOUT_S)
-            )
-        pending = self.port.ask_later(target, verb, body, FORWARD_TIMEOUT_S)
+            answer = self.port.ask(target, verb, body, FORWARD_TIMEOUT_S, reply_by_unix_ns)
+            return self._forwarded(fault, source, target, answer)
+        pending = self.port.ask_later(target, verb, body, FORWARD_TIMEOUT_S, reply_by_unix_ns)
         forward = _Forward(fault, source, target, pending, DeferredAnswer())
         self._forwards.append(forward)
         return forward.deferred
 
     def _forward_register(
-        self, fault: Fault, source: Source
+        self, fault: Fault, source: Source, reply_by_unix_ns: int | None
     ) -> FaultReply | AdminError | DeferredAnswer:
         robot = fault_subjects(fault)[0]
         if robot not in self.port.live:
@@ -660,9 +686,12 @@ class FaultHub:
             )
             self._record_refusal(fault, source, refusal)
             return refusal
-        return self._forward(fault, source, robot, "fault", FAULT_ADAPTER.dump_json(fault))
+        body = FAULT_ADAPTER.dump_json(fault)
+        return self._forward(fault, source, robot, "fault", body, reply_by_unix_ns)
 
-    def _process(self, fault: Fault, source: Source) -> FaultReply | AdminError | DeferredAnswer:
+    def _process(
+        self, fault: Fault, source: Source, reply_by_unix_ns: int | None
+    ) -> FaultReply | AdminError | DeferredAnswer:
         process = fault_subjects(fault)[0]
         verb = fault.fault
         body = ProcessRequest(process=process).to_json_bytes()
@@ -676,7 +705,7 @@ class FaultHub:
                 self._settle.world_death = True
             self.port.send("launcher", verb, body)
             return FaultReply(event=event)
-        outcome = self._forward(fault, source, "launcher", verb, body)
+        outcome = self._forward(fault, source, "launcher", verb, body, reply_by_unix_ns)
         if isinstance(outcome, FaultReply) and self.port.lockstep and process in self.robots:
             self._seat_after(process, verb)
         return outcome

@@ -119,6 +119,7 @@ from robot_firmware.net.messages import (
     parse_message,
 )
 from robot_firmware.net.radio_bundle import bundle_frames
+from robot_firmware.net.request_deadline import request_attachment
 from robot_firmware.net.session import (
     DEFAULT_ENDPOINT,
     open_client_until_stopped,
@@ -318,6 +319,11 @@ def new_epoch(avoid: object = None) -> int:
 def _overloaded_on_purpose(telemetry: TelemetryMessage) -> bool:
     """Whether the robot reports a `tick_slow` register fault (a deliberate CPU overload)."""
     return any(label.split("(", 1)[0] == "tick_slow" for label in telemetry.register_faults)
+
+
+SEND_TIMEOUT_S = 5.0
+"""How long a request the world does not wait for (its own and the router's kill, restart or
+stop, which the launcher carries out) stays good for."""
 
 
 def _take_answer(pending: PendingAnswer, reply: zenoh.Reply) -> None:
@@ -1424,7 +1430,9 @@ class WorldProcess:
         return {
             "net": self._net_request,
             "status": lambda _body: self._status(),
-            "fault": self.faults.request,
+            "fault": lambda body: self.faults.request(
+                body, self._fault_admin.serving_reply_by_unix_ns
+            ),
         }
 
     def _serve_queries(self) -> None:
@@ -1455,10 +1463,17 @@ class WorldProcess:
         self.engine.apply_network_fault(fault)
         log.info("network fault: %s", fault.model_dump_json(exclude_none=True))
 
-    def ask(self, target: str, verb: str, body: bytes, timeout_s: float) -> bytes | None:
+    def ask(
+        self,
+        target: str,
+        verb: str,
+        body: bytes,
+        timeout_s: float,
+        reply_by_unix_ns: int | None = None,
+    ) -> bytes | None:
         """One admin request to another process, answered while this world serves its own
         queries; None without an answer."""
-        pending = self.ask_later(target, verb, body, timeout_s)
+        pending = self.ask_later(target, verb, body, timeout_s, reply_by_unix_ns)
         while not self.stop.is_set():
             done, payload = pending.result()
             if done:
@@ -1467,16 +1482,28 @@ class WorldProcess:
             self._serve_queries()
         return None
 
-    def ask_later(self, target: str, verb: str, body: bytes, timeout_s: float) -> PendingAnswer:
-        """One admin request to another process, not waited for (world/faults.py `poll`)."""
-        pending = PendingAnswer(timeout_s)
-        if self._session is None:
+    def ask_later(
+        self,
+        target: str,
+        verb: str,
+        body: bytes,
+        timeout_s: float,
+        reply_by_unix_ns: int | None = None,
+    ) -> PendingAnswer:
+        """One admin request to another process, not waited for (world/faults.py `poll`): for
+        at most `timeout_s`, and not past `reply_by_unix_ns`, the deadline of the request that
+        asked for it (robot_firmware/net/request_deadline.py)."""
+        if reply_by_unix_ns is not None:
+            timeout_s = min(timeout_s, (reply_by_unix_ns - time.time_ns()) / 1e9)
+        pending = PendingAnswer(max(timeout_s, 0.0))
+        if self._session is None or timeout_s <= 0:
             pending.on_end()
             return pending
         self._session.get(
             self.keys.admin(target, verb),
             zenoh.handlers.Callback(partial(_take_answer, pending), pending.on_end),
             payload=body,
+            attachment=request_attachment(timeout_s),
             timeout=timeout_s,
         )
         return pending
@@ -1487,7 +1514,8 @@ class WorldProcess:
                 self.keys.admin(target, verb),
                 zenoh.handlers.Callback(_ignore_reply),
                 payload=body,
-                timeout=5.0,
+                attachment=request_attachment(SEND_TIMEOUT_S),
+                timeout=SEND_TIMEOUT_S,
             )
 
     def await_tokens(self, wanted: dict[str, bool], timeout_s: float) -> set[str]:

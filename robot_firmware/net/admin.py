@@ -33,6 +33,11 @@ from pydantic import BaseModel
 from robot_firmware.net.answers import DeferredAnswer
 from robot_firmware.net.keys import SwarmKeys
 from robot_firmware.net.messages import AdminError, AdminRefusal, parse_reply
+from robot_firmware.net.request_deadline import (
+    expired_request_problem,
+    reply_by_unix_ns,
+    request_attachment,
+)
 from robot_firmware.net.session import open_client
 from swarm_config.credentials import ProcessCredentials
 
@@ -82,10 +87,13 @@ class AdminQueue:
         serve_budget_s: float = ADMIN_SERVE_BUDGET_S,
         clock: Callable[[], float] = time.perf_counter,
     ) -> None:
-        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._queries: queue.SimpleQueue[tuple[zenoh.Query, int]] = queue.SimpleQueue()
         self.counters = AdminCounters()
         self.serve_budget_s = serve_budget_s
         self._clock = clock
+        self.serving_reply_by_unix_ns: int | None = None
+        """While a handler runs: until when the request's sender waits (its attachment), for
+        a handler that passes the request on (robot_firmware/net/request_deadline.py)."""
 
     def on_query(self, query: zenoh.Query) -> None:
         """The queryable's callback: queue and return, or, when `ADMIN_QUEUE_MAX` requests
@@ -95,7 +103,7 @@ class AdminQueue:
             self.counters.refused[AdminRefusal.BUSY] += 1
             query.reply(query.key_expr, _BUSY_REPLY)
             return
-        self._queries.put(query)
+        self._queries.put((query, time.time_ns()))
 
     @property
     def pending(self) -> bool:
@@ -110,12 +118,24 @@ class AdminQueue:
         deadline = self._clock() + self.serve_budget_s
         while served == 0 or self._clock() < deadline:
             try:
-                query = self._queries.get_nowait()
+                query, received_unix_ns = self._queries.get_nowait()
             except queue.Empty:
                 return served
             verb = SwarmKeys.last_chunk(str(query.key_expr))
-            body = query.payload.to_bytes() if query.payload is not None else b""
-            reply = _reply(handlers, verb, body)
+            attachment = None if query.attachment is None else query.attachment.to_bytes()
+            expired = expired_request_problem(attachment, received_unix_ns, time.time_ns())
+            if expired is not None:
+                problem, malformed = expired
+                log.warning("admin request %r not served: %s", verb, problem)
+                reason = AdminRefusal.INVALID_REQUEST if malformed else AdminRefusal.EXPIRED
+                reply: BaseModel | DeferredAnswer = AdminError(error=problem, reason=reason)
+            else:
+                body = query.payload.to_bytes() if query.payload is not None else b""
+                self.serving_reply_by_unix_ns = reply_by_unix_ns(attachment)
+                try:
+                    reply = _reply(handlers, verb, body)
+                finally:
+                    self.serving_reply_by_unix_ns = None
             if isinstance(reply, DeferredAnswer):
                 reply.bind(partial(self._answer_later, query))
             else:
@@ -210,7 +230,12 @@ def ask(
     except zenoh.ZError:
         raise RouterUnreachableError(endpoint) from None
     with session:
-        replies = session.get(keys.admin(target, verb), payload=payload, timeout=timeout_s)
+        replies = session.get(
+            keys.admin(target, verb),
+            payload=payload,
+            attachment=request_attachment(timeout_s),
+            timeout=timeout_s,
+        )
         for reply in replies:
             if reply.ok is not None:
                 return bytes(reply.ok.payload.to_bytes())

@@ -223,6 +223,10 @@ class AdminRefusal(enum.StrEnum):
     """The process a request is forwarded to is not up, or did not answer in time."""
     BUSY = "busy"
     """Too many requests already wait for the process's loop (a flood): ask again."""
+    EXPIRED = "expired"
+    """The request's sender had stopped waiting before it could be served, or it came after
+    the router had closed the session it came on (robot_firmware/net/request_deadline.py): not
+    carried out."""
 
 
 def refusal_of(error: ValidationError) -> AdminRefusal:

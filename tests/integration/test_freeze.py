@@ -154,3 +154,33 @@ def test_a_fault_forwarded_to_a_frozen_robot_holds_no_other_robot_back(
         log = _log_from(live, name, offsets[name])
         assert "no sense message" not in log, f"{name} lost its sense messages:\n{log}"
         assert _query(live, name, "status")["safe_stops"] == safe_stops[name]
+
+
+SCRATCH = "0xFF200010"  # sysid.SCRATCH: a register the firmware never writes
+
+
+def _scratch(live: LiveSwarm) -> str | None:
+    read = live.cli("regs", FROZEN, SCRATCH, "--timeout", "2")
+    return read.stdout.split()[-1] if read.returncode == 0 and read.stdout else None
+
+
+def test_a_request_a_frozen_robot_gave_no_answer_to_is_not_carried_out_later(
+    live_swarm: LiveSwarm,
+) -> None:
+    """Before, `swarm regs` writing to a stopped robot said "no answer", and the robot,
+    continued, carried the write out: the request had waited in its socket."""
+    live = live_swarm
+    pid = live.all_running()["processes"][FROZEN]["pid"]
+    assert live.cli("regs", FROZEN, SCRATCH, "0").returncode == 0
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        write = live.cli("regs", FROZEN, SCRATCH, "0x101", "--timeout", "2")
+        time.sleep(1.0)  # the write's sender has stopped waiting before the robot goes on
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    assert write.returncode == 2 and "no answer" in write.stderr, write.stderr
+    assert live.wait_for(lambda: _scratch(live), describe="robot2 answering") == "0x00000000"
+    time.sleep(1.0)  # a pass or a hundred of robot2's loop, had the request still waited
+    assert _scratch(live) == "0x00000000"
+    log = (live.out / "logs" / f"{FROZEN}.log").read_text()
+    assert "admin request 'regs' not served" in log, log[-2000:]

@@ -4,7 +4,10 @@ without a network."""
 from __future__ import annotations
 
 import json
+import time
+from pathlib import Path
 
+import pytest
 from pydantic import BaseModel
 
 from robot_firmware.fpga.address_map import BRIDGE_BASE
@@ -24,7 +27,16 @@ from robot_firmware.net.messages import (
     parse_message_or_reason,
     parse_reply,
 )
+from robot_firmware.net.request_deadline import (
+    NS_PER_S,
+    TRANSIT_MAX_S,
+    machine_id,
+    reply_by_unix_ns,
+    request_attachment,
+)
 from robot_firmware.regs_admin import handle_regs_request
+
+ROOT = Path(__file__).resolve().parents[2]
 
 SYSID_ID = BRIDGE_BASE  # the system ID IP sits first in the map
 SYSID_SCRATCH = BRIDGE_BASE + 0x10
@@ -148,12 +160,21 @@ def test_malformed_regs_requests_are_refused_with_the_field_named() -> None:
     )
 
 
+class _BytesStandIn:
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
 class _QueryStandIn:
     """What `AdminQueue.serve` reads of a zenoh query, and the reply it sends."""
 
-    def __init__(self, verb: str) -> None:
+    def __init__(self, verb: str, attachment: bytes | None = None) -> None:
         self.key_expr = f"swarm/lab/admin/robot1/{verb}"
         self.payload = None
+        self.attachment = None if attachment is None else _BytesStandIn(attachment)
         self.replies: list[bytes] = []
 
     def reply(self, _key_expr: object, payload: bytes) -> None:
@@ -233,3 +254,75 @@ def test_a_flood_beyond_the_queue_is_answered_busy_at_once_and_not_queued() -> N
     late = _QueryStandIn("status")
     admin.on_query(late)  # type: ignore[arg-type]
     assert not late.replies  # room again: queued, not refused
+
+
+def _served(attachment: bytes | None) -> tuple[list[int | None], AdminError | None, AdminQueue]:
+    """Serve one `status` query with `attachment`: the deadlines its handler saw, and the
+    refusal it got instead, if any."""
+    admin = AdminQueue()
+    query = _QueryStandIn("status", attachment)
+    admin.on_query(query)  # type: ignore[arg-type]
+    seen: list[int | None] = []
+
+    def status(_body: bytes) -> KillReply:
+        seen.append(admin.serving_reply_by_unix_ns)
+        return KillReply(killed=False)
+
+    admin.serve({"status": status})
+    reply = parse_reply(KillReply, query.replies[0])
+    return seen, reply if isinstance(reply, AdminError) else None, admin
+
+
+def test_a_request_within_its_deadline_is_served_and_its_handler_sees_the_deadline() -> None:
+    attachment = request_attachment(3.0)
+    seen, refusal, admin = _served(attachment)
+    assert refusal is None and seen == [reply_by_unix_ns(attachment)]
+    assert admin.serving_reply_by_unix_ns is None  # only while the handler runs
+    assert _served(None)[:2] == ([None], None)  # a request of another tool: as before
+
+
+def test_a_request_its_sender_stopped_waiting_for_is_not_carried_out() -> None:
+    """Before, a request that waited in a stopped process was carried out once it continued,
+    after its sender had printed "no answer"."""
+    long_ago = time.time_ns() - 10 * NS_PER_S
+    late = request_attachment(3.0, now_unix_ns=long_ago).replace(
+        str(long_ago).encode(), str(time.time_ns()).encode(), 1
+    )  # sent just now, but its deadline passed 7 s ago
+    seen, refusal, admin = _served(late)
+    assert seen == [] and refusal is not None and refusal.reason == AdminRefusal.EXPIRED
+    assert "stopped waiting" in refusal.error
+    assert admin.counters.refused[AdminRefusal.EXPIRED] == 1
+
+
+def test_a_request_that_came_after_the_session_lease_is_not_carried_out() -> None:
+    """The router closes a frozen process's session after the lease (1 s), which ends the
+    request at its sender; the request, already in the process's socket, came in once it
+    continued.  Before, it was carried out."""
+    sent_long_ago = request_attachment(60.0, now_unix_ns=time.time_ns() - 5 * NS_PER_S)
+    seen, refusal, _admin = _served(sent_long_ago)
+    assert seen == [] and refusal is not None and refusal.reason == AdminRefusal.EXPIRED
+    assert "came 5." in refusal.error
+
+
+@pytest.mark.parametrize(
+    "attachment", [b"", b"garbage", b"sent_unix_ns=1;reply_by_unix_ns=-2", b"x" * 10_000]
+)
+def test_a_malformed_attachment_is_an_invalid_request(attachment: bytes) -> None:
+    seen, refusal, _admin = _served(attachment)
+    assert seen == [] and refusal is not None
+    assert refusal.reason == AdminRefusal.INVALID_REQUEST and len(refusal.error) < 200
+
+
+def test_the_transit_bound_is_the_clients_session_lease() -> None:
+    config = (ROOT / "configs" / "zenoh" / "client.json5").read_text()
+    assert f"lease: {round(TRANSIT_MAX_S * 1000)}" in config
+
+
+def test_a_request_from_another_machine_is_served_whatever_its_clock_says() -> None:
+    """The swarm needs no clock synchronisation between hosts (docs/multi-host.md): times from
+    another machine's clock are not compared with this one's."""
+    ages_ago = request_attachment(3.0, now_unix_ns=time.time_ns() - 3600 * NS_PER_S)
+    elsewhere = ages_ago.replace(machine_id().encode(), b"another-host")
+    seen, refusal, _admin = _served(elsewhere)
+    assert refusal is None and seen == [None]
+    assert _served(ages_ago)[1] is not None  # the same times from this machine: refused

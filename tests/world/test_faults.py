@@ -399,16 +399,33 @@ class FakePort:
     events: list[RunEvent] = field(default_factory=list)
     pending: list[PendingAnswer] = field(default_factory=list)
     clock_s: float = 0.0
+    reply_by: list[int | None] = field(default_factory=list)
 
     def apply_network_fault(self, fault: NetworkFault) -> None:
         self.calls.append(("network", fault.fault))
 
-    def ask(self, target: str, verb: str, body: bytes, timeout_s: float) -> bytes | None:
+    def ask(
+        self,
+        target: str,
+        verb: str,
+        body: bytes,
+        timeout_s: float,
+        reply_by_unix_ns: int | None = None,
+    ) -> bytes | None:
         self.calls.append(("ask", target, verb, json.loads(body)))
+        self.reply_by.append(reply_by_unix_ns)
         return self.answers.get((target, verb))
 
-    def ask_later(self, target: str, verb: str, body: bytes, timeout_s: float) -> PendingAnswer:
+    def ask_later(
+        self,
+        target: str,
+        verb: str,
+        body: bytes,
+        timeout_s: float,
+        reply_by_unix_ns: int | None = None,
+    ) -> PendingAnswer:
         self.calls.append(("ask_later", target, verb, json.loads(body)))
+        self.reply_by.append(reply_by_unix_ns)
         pending = PendingAnswer(timeout_s, clock=lambda: self.clock_s)
         self.pending.append(pending)
         return pending
@@ -598,6 +615,18 @@ def test_in_real_time_a_forward_holds_nothing_and_is_answered_when_its_answer_co
     assert hub.forwards_waiting == 0
     assert len(sent) == 1 and isinstance(sent[0], FaultReply)
     assert [(e.kind, e.detail["tick"]) for e in port.events] == [("fault_injected", 1507)]
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_a_forward_goes_with_the_deadline_of_the_request_that_asked_for_it(lockstep: bool) -> None:
+    """Before, the world forwarded with a 5 s time-out of its own whatever the `swarm fault`
+    command waited: a robot could carry out a fault its sender had been told had no answer."""
+    port = FakePort(lockstep=lockstep)
+    port.answers[("robot2", "fault")] = OK
+    hub = _hub(port)
+    hub.request(_body(fault="fix_cut", robot="robot2"), reply_by_unix_ns=123_456_789)
+    hub.inject(FAULT_ADAPTER.validate_python({"fault": "fix_cut", "robot": "robot3"}), "schedule")
+    assert port.reply_by == [123_456_789, None]
 
 
 def test_in_real_time_a_forward_nobody_answers_is_refused_once_its_time_is_out() -> None:
