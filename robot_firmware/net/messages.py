@@ -223,6 +223,8 @@ class AdminRefusal(enum.StrEnum):
     """The process a request is forwarded to is not up, or did not answer in time."""
     BUSY = "busy"
     """Too many requests already wait for the process's loop (a flood): ask again."""
+    CANNOT_START = "cannot_start"
+    """The launcher cannot start the process: what it needs of the run folder is gone."""
     EXPIRED = "expired"
     """The request's sender had stopped waiting before it could be served, or it came after
     the router had closed the session it came on (robot_firmware/net/request_deadline.py): not

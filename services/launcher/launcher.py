@@ -307,6 +307,23 @@ class LaunchPlan:
         return f"http://127.0.0.1:{self.web_port}/?url={source}"
 
 
+LAST_LINE_BYTES_MAX = 4096
+"""How much of a log's end `last_line` reads."""
+
+
+def last_line(path: Path) -> str:
+    """The last non-empty line of a log file (at most 300 characters), or why there is none."""
+    try:
+        with path.open("rb") as log_file:
+            size = log_file.seek(0, os.SEEK_END)
+            log_file.seek(max(0, size - LAST_LINE_BYTES_MAX))
+            tail = log_file.read().decode("utf-8", errors="replace")
+    except OSError as exc:
+        return f"none ({path}: {exc.strerror or exc})"
+    lines = [line for line in tail.splitlines() if line.strip()]
+    return repr(lines[-1][-300:]) if lines else "none (the log is empty)"
+
+
 def start_problem(plan: LaunchPlan) -> str | None:
     """Why `swarm up` of `plan` cannot start, seen from this host before anything is written or
     started: an open-file limit too low for its router (services/launcher/open_files.py), an
@@ -436,6 +453,7 @@ class Launcher:
         self.router_listen_endpoints = tuple(listen)
         # The run's own copy of its scenario: restarts read it, whatever becomes of the file.
         scenario = str(snapshot_scenario(plan.scenario, plan.out_dir))
+        self.scenario_copy = Path(scenario)
         if plan.runs_world:
             # A world resumes from the checkpoints in its folder: those of an earlier run there
             # would make this run carry on from that one's end (its time, bodies, counters).
@@ -606,10 +624,31 @@ class Launcher:
         name = self._process_named(body)
         return name if isinstance(name, AdminError) else KillReply(killed=self.kill(name))
 
+    def missing_to_start(self, name: str) -> str | None:
+        """Why `name` could not start from the run folder now, else None: its credentials or
+        the run's scenario copy are gone (the folder deleted or moved while the run went on;
+        before, a restart said ok and the process ended at once, and the launcher pointed to
+        a log in the folder that was gone)."""
+        needed = [self.credential_files[name]]
+        if name != "router":
+            needed.append(self.scenario_copy)
+        missing = [path for path in needed if not path.is_file()]
+        if not missing:
+            return None
+        if not self.plan.out_dir.is_dir():
+            return (
+                f"{name} cannot start: the run folder {self.plan.out_dir} is gone (deleted or "
+                f"moved while the run went on), and {missing[0].name} with it"
+            )
+        return f"{name} cannot start: {missing[0]} is missing (deleted while the run went on)"
+
     def _restart_request(self, body: bytes) -> RestartReply | AdminError:
         name = self._process_named(body)
         if isinstance(name, AdminError):
             return name
+        missing = self.missing_to_start(name)
+        if missing is not None:
+            return AdminError(error=missing, reason=AdminRefusal.CANNOT_START)
         self.restart(name)
         process = self.children[name].process
         return RestartReply(restarted=name, pid=process.pid if process else None)
@@ -757,10 +796,18 @@ class Launcher:
             return None
         if exit_code in (0, EXIT_SUMMARY_NOT_WRITTEN):  # the run ended either way
             return exit_code
+        missing = self.missing_to_start("world")
+        if missing is not None:
+            log.error("the world exited (%d) and %s: ending the run", exit_code, missing)
+            return exit_code
         quick = time.monotonic() - world.started_mono_s < WORLD_QUICK_DEATH_S
         self.world_quick_deaths = self.world_quick_deaths + 1 if quick else 0
         if self.world_quick_deaths >= WORLD_MAX_QUICK_DEATHS:
-            log.error("the world died %d times at its start; ending", self.world_quick_deaths)
+            log.error(
+                "the world died %d times at its start; ending (its last log line: %s)",
+                self.world_quick_deaths,
+                last_line(world.log_path),
+            )
             return exit_code
         signum = exit_code - 128
         if signum in STOP_SIGNALS:

@@ -3,6 +3,7 @@ children."""
 
 from __future__ import annotations
 
+import shutil
 import signal
 from collections.abc import Iterator
 from pathlib import Path
@@ -118,6 +119,47 @@ def test_a_world_that_cannot_start_ends_the_run(launcher: Launcher) -> None:
         _world(launcher).returncode = 2
         outcome = launcher.supervise_world()
         assert outcome == (2 if death == WORLD_MAX_QUICK_DEATHS - 1 else None)
+
+
+def test_a_world_that_cannot_start_says_why_with_its_last_log_line(
+    launcher: Launcher, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Before: "the world died 5 times at its start; ending", and nothing of why."""
+    caplog.set_level("ERROR", logger="swarm.launcher")
+    launcher.children["world"].log_path.write_text("booting\nswarm world: no such thing\n\n")
+    for _ in range(WORLD_MAX_QUICK_DEATHS):
+        _world(launcher).returncode = 2
+        launcher.supervise_world()
+    assert [r.getMessage() for r in caplog.records] == [
+        f"the world died {WORLD_MAX_QUICK_DEATHS} times at its start; ending (its last log "
+        "line: 'swarm world: no such thing')"
+    ]
+
+
+@pytest.mark.parametrize("gone", ["credentials", "folder"])
+def test_a_process_whose_run_folder_is_gone_is_not_restarted_and_says_why(
+    launcher: Launcher, gone: str
+) -> None:
+    """Before, with the run folder deleted, `swarm restart robot2` answered ok with a new pid,
+    the process ended at once (status 2), and the world was tried five times in vain."""
+    out = launcher.plan.out_dir
+    if gone == "credentials":
+        launcher.credential_files["robot2"].unlink()
+        launcher.credential_files["world"].unlink()
+    else:
+        shutil.rmtree(out)
+    before = _process(launcher, "robot2")
+    refused = launcher.admin_handlers()["restart"](_request("robot2"))
+    assert isinstance(refused, AdminError) and refused.reason == AdminRefusal.CANNOT_START
+    assert refused.error.startswith("robot2 cannot start: ")
+    if gone == "folder":
+        assert f"the run folder {out} is gone (deleted or moved" in refused.error
+    else:
+        assert "robot2.json is missing (deleted while the run went on)" in refused.error
+    assert _process(launcher, "robot2") is before and launcher.children["robot2"].restarts == 0
+    _world(launcher).returncode = -9
+    assert launcher.supervise_world() == -9  # the run ends at once: no world can start
+    assert launcher.children["world"].restarts == 0
 
 
 def test_an_unknown_process_is_refused_and_nothing_changes(launcher: Launcher) -> None:
