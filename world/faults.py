@@ -73,6 +73,8 @@ from robot_firmware.net.messages import (
     AdminError,
     AdminRefusal,
     FaultReply,
+    LinkOverride,
+    NetworkFaultsReport,
     ProcessRequest,
     refusal_of,
 )
@@ -90,7 +92,7 @@ from swarm_config.faults import (
     fault_subjects,
     swarm_fault_problem,
 )
-from swarm_config.radio import LinkProfile
+from swarm_config.radio import BurstLoss, LinkProfile
 from swarm_config.settings import describe_validation_error
 from world.checkpoint import CheckpointError, decode_array, encode_array
 from world.radio import LinkTable
@@ -119,6 +121,10 @@ _UNSET = -1
 _INDEPENDENT = 0
 _BURST = 1
 _BURST_FIELDS = ("good_to_bad", "bad_to_good", "loss_in_good", "loss_in_bad")
+
+
+def _number_or_none(value: np.floating[Any]) -> float | None:
+    return None if np.isnan(value) else float(value)
 
 
 class NetworkFaults:
@@ -215,6 +221,36 @@ class NetworkFaults:
             cut=self.cut.copy(),
             range_m=base.range_m,
             **burst_values,
+        )
+
+    def report(self) -> NetworkFaultsReport | None:
+        """What is in effect, for `swarm net get` and the world's status: the overridden
+        links, grouped by what was set on them, and the cut links; None without any."""
+        if not self.active:
+            return None
+        groups: dict[LinkOverride, list[tuple[str, str]]] = {}
+        n = len(self.names)
+        for i in range(n):
+            for j in range(i + 1, n):
+                burst = None
+                if self.loss_model[i, j] == _BURST:
+                    values = (float(v) for v in self.burst[:, i, j])
+                    burst = BurstLoss(**dict(zip(_BURST_FIELDS, values, strict=True)))
+                override = LinkOverride(
+                    links=(),
+                    latency_ms=_number_or_none(self.latency_ms[i, j]),
+                    jitter_ms=_number_or_none(self.jitter_ms[i, j]),
+                    loss=_number_or_none(self.loss[i, j]),
+                    burst=burst,
+                )
+                if override != LinkOverride(links=()):
+                    groups.setdefault(override, []).append((self.names[i], self.names[j]))
+        return NetworkFaultsReport(
+            overrides=tuple(
+                override.model_copy(update={"links": tuple(links)})
+                for override, links in groups.items()
+            ),
+            cut_links=tuple(self.cut_links()),
         )
 
     def cut_links(self) -> list[tuple[str, str]]:

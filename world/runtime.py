@@ -1601,6 +1601,7 @@ class WorldProcess:
             live=tuple(sorted(self.live)),
             robots=self.names,
             radio=self.radio_stats(),
+            network_faults=self.engine.network.report(),
             metrics=RunMetrics.model_validate(self.engine.summary()),
             position_errors_m=self.current_position_errors(),
             lockstep_owed={
@@ -1630,7 +1631,7 @@ class WorldProcess:
         """Get the link profile (empty body), switch to a named one ({"profile": NAME}), or
         change some of its fields ({"loss": 0.2, ...}); a bad request changes nothing."""
         if not payload:
-            return NetReply(profile=self.engine.link)
+            return NetReply(profile=self.engine.link, faults=self.engine.network.report())
         try:
             request = json.loads(payload)
         except (ValueError, RecursionError) as exc:  # ValueError: also not UTF-8
@@ -1656,4 +1657,4 @@ class WorldProcess:
             return AdminError(error=describe_validation_error("invalid network profile", exc))
         self.engine.link = profile
         log.info("radio profile set to %s", profile.model_dump(exclude_none=True))
-        return NetReply(profile=profile)
+        return NetReply(profile=profile, faults=self.engine.network.report())

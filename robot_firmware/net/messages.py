@@ -39,7 +39,7 @@ from typing import Annotated, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from swarm_config.faults import RegisterFault, RunEvent
-from swarm_config.radio import LinkProfile
+from swarm_config.radio import BurstLoss, LinkProfile
 
 Pose = tuple[float, float, float]
 """x_m, y_m, theta_rad."""
@@ -406,6 +406,26 @@ class LockstepProfileReport(Message):
     """Per robot: median wall time from the tick's sense message out to its act message in."""
 
 
+class LinkOverride(Message):
+    """Links whose profile a `swarm fault net` changed, and what it set on them; the rest of
+    each one's profile is the running one."""
+
+    links: tuple[tuple[str, str], ...]
+    """Each pair once; an override holds in both directions."""
+    latency_ms: float | None = None
+    jitter_ms: float | None = None
+    loss: float | None = None
+    burst: BurstLoss | None = None
+
+
+class NetworkFaultsReport(Message):
+    """The network faults in effect on top of the running link profile (`swarm fault net`,
+    `swarm fault partition`); `swarm fault heal` clears them all."""
+
+    overrides: tuple[LinkOverride, ...] = ()
+    cut_links: tuple[tuple[str, str], ...] = ()
+
+
 class WorldStatusReply(AdminOk):
     """`admin/world/status`."""
 
@@ -417,6 +437,8 @@ class WorldStatusReply(AdminOk):
     live: tuple[str, ...]
     robots: tuple[str, ...]
     radio: RadioStats
+    network_faults: NetworkFaultsReport | None = None
+    """The network faults in effect on top of `radio.profile`; None without any."""
     metrics: RunMetrics
     position_errors_m: dict[str, float]
     """Each robot's distance from its reference now (trajectory or slot, DESIGN.md §8)."""
@@ -439,6 +461,9 @@ class NetProfileRequest(Message):
 
 class NetReply(AdminOk):
     profile: LinkProfile
+    faults: NetworkFaultsReport | None = None
+    """The network faults in effect on top of `profile`; None without any (before, `net get`
+    showed the profile alone, while a `fault net` override dropped nine frames in ten)."""
 
 
 class FaultReply(AdminOk):

@@ -506,6 +506,18 @@ def test_status_regs_and_net_on_a_running_swarm(live_swarm: LiveSwarm) -> None:
     )
     assert changed["ok"] and changed["profile"]["latency_ms"] == 50.0
     assert live_swarm.admin("net", "get")["profile"]["loss"] == 0.2
+    # A fault on the links shows beside the profile it changes, until `heal` (before, `net
+    # get` and the world's status showed the profile alone).
+    assert live_swarm.admin("net", "get")["faults"] is None
+    assert live_swarm.admin("fault", "net", "--robot", "robot3", "--loss", "0.9")["ok"]
+    faults = live_swarm.admin("net", "get")["faults"]
+    robot3 = {"links": [["robot1", "robot3"], ["robot2", "robot3"]], "loss": 0.9}
+    unset = {"latency_ms": None, "jitter_ms": None, "burst": None}
+    assert faults == {"overrides": [{**robot3, **unset}], "cut_links": []}, faults
+    assert _world_status(live_swarm)["network_faults"] == faults
+    assert live_swarm.admin("fault", "heal")["ok"]
+    assert live_swarm.admin("net", "get")["faults"] is None
+    assert live_swarm.admin("net", "get")["profile"]["loss"] == 0.2  # heal keeps `net set`
 
     # A second `swarm up` on this run's directory (on another port) is refused before it
     # writes anything: before, it wrote new credentials over this run's, so the command line

@@ -860,3 +860,26 @@ def test_the_summary_counts_every_kind_and_times_failovers_and_rejoins() -> None
     assert summary["rejoins"] == [
         {"robot": "robot1", "down_t_s": 25.0, "up_t_s": 40.0, "down_for_s": 15.0}
     ]
+
+
+def test_the_network_faults_in_effect_are_reported_grouped_by_what_they_set() -> None:
+    """Before, `swarm net get` and the world's status showed the running profile alone, while
+    a `fault net` override dropped nine frames in ten."""
+    faults = NetworkFaults(NAMES)
+    assert faults.report() is None
+    faults.apply(NetFault(fault="net", robot="robot3", loss=0.9))
+    faults.apply(NetFault(fault="net", link=("robot1", "robot2"), latency_ms=40.0))
+    faults.apply(PartitionFault(fault="partition", robots=["robot1"]))
+    report = faults.report()
+    assert report is not None
+    assert [o.model_dump(exclude_none=True) for o in report.overrides] == [
+        {"links": (("robot1", "robot2"),), "latency_ms": 40.0},
+        {"links": (("robot1", "robot3"), ("robot2", "robot3")), "loss": 0.9},
+    ]
+    assert report.cut_links == (("robot1", "robot2"), ("robot1", "robot3"))
+    faults.apply(NetFault(fault="net", burst=BurstLoss(good_to_bad=0.1, bad_to_good=0.5)))
+    report = faults.report()
+    assert report is not None and len(report.overrides) == 2
+    assert all(o.burst == BurstLoss(good_to_bad=0.1, bad_to_good=0.5) for o in report.overrides)
+    faults.apply(HealFault(fault="heal"))
+    assert faults.report() is None
