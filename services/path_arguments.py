@@ -9,6 +9,9 @@ refuses an empty path argument before it does anything; `.` still names the curr
 from __future__ import annotations
 
 import argparse
+import errno
+import os
+from pathlib import Path
 
 PATH_ARGUMENTS = {
     "out": "--out",
@@ -28,4 +31,18 @@ def empty_path_problem(args: argparse.Namespace) -> str | None:
     for destination, flag in PATH_ARGUMENTS.items():
         if getattr(args, destination, None) == "":
             return f"{flag} is an empty path (write . for the current folder)"
+    return None
+
+
+def broken_link_problem(path: Path) -> str | None:
+    """What `path` is when it is a symbolic link that leads to nothing (pathlib's exists()
+    says False, mkdir "File exists", open "No such file"): one to a missing target, or a loop
+    of links; else None."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return f"{path} is a symbolic link in a loop of links, which leads to no file"
+        if os.path.islink(path):
+            return f"{path} is a symbolic link to {os.readlink(path)}, which does not exist"
     return None

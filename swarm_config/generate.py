@@ -38,6 +38,7 @@ import random
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from decimal import Decimal
 from typing import Literal, get_args
 
 import numpy as np
@@ -392,16 +393,28 @@ def _check_written_values(
         )
 
 
+def _exact_number(value: float) -> str:
+    """`value` exactly, in the fewest digits that read back as the very same float (Python's
+    repr), written in fixed point (`0.00001`, not `1e-05`)."""
+    return format(Decimal(repr(float(value))), "f")
+
+
 def command_line(
     request: GenerateRequest, spacing_m: float, size_m: float, speed_mps: float, name: str
 ) -> str:
-    """The `swarm scenario generate` arguments that re-create the file (defaults spelt out)."""
+    """The `swarm scenario generate` arguments that re-create the file (defaults spelt out).
+
+    Every number is written exactly (`_exact_number`), not with the file's fixed decimals: a
+    rounded flag gave another file (`--spacing-m 1.23456` came back as 1.2346, other slots),
+    or one refused (`--speed-mps 0.00001` came back as 0.0)."""
+    # A name that starts with '-' would read as a flag of its own: `--name=-x` is one argument.
+    name_argument = f"--name={name}" if name.startswith("-") else f"--name {name}"
     return (
         f"swarm scenario generate --robots {request.robots} --formation {request.formation} "
-        f"--spacing-m {_number(spacing_m, 4)} --trajectory {request.trajectory} "
-        f"--size-m {_number(size_m, 4)} --speed-mps {_number(speed_mps, 4)} "
+        f"--spacing-m {_exact_number(spacing_m)} --trajectory {request.trajectory} "
+        f"--size-m {_exact_number(size_m)} --speed-mps {_exact_number(speed_mps)} "
         f"--obstacles {request.obstacles} --seed {request.seed} "
-        f"--duration {_number(request.duration_s, 3)} --name {name}"
+        f"--duration {_exact_number(request.duration_s)} {name_argument}"
     )
 
 

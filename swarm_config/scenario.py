@@ -26,6 +26,7 @@ from pydantic import (
     Field,
     PositiveFloat,
     ValidationError,
+    field_validator,
     model_validator,
 )
 
@@ -40,6 +41,7 @@ from robot_firmware.control.trajectories import (
 )
 from swarm_config.atomic_files import write_file_atomically
 from swarm_config.body import BodyParams
+from swarm_config.credentials import SERVICE_IDENTITIES
 from swarm_config.faults import (
     PROCESS_ROLES,
     ScheduledFault,
@@ -170,6 +172,18 @@ class RobotSpec(_Strict):
     role: Literal["leader", "follower"]
     initial_pose: PoseSpec
     slot: SlotSpec | None = None
+
+    @field_validator("name")
+    @classmethod
+    def _not_a_service(cls, value: str | None) -> str | None:
+        # Before, `swarm sim` took a robot named world, and `swarm credentials` then refused
+        # the scenario without naming the robot or the field.
+        if value in SERVICE_IDENTITIES:
+            raise ValueError(
+                f"{value!r} is reserved for a service of the run "
+                f"({', '.join(SERVICE_IDENTITIES)}): give the robot another name"
+            )
+        return value
 
     @model_validator(mode="after")
     def _slot_for_followers(self) -> RobotSpec:

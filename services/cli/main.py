@@ -76,6 +76,13 @@ UNUSABLE_PATH_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP})
 """What a file system call answers a path given on the command line that no call can take."""
 ROUTER_BACK_WITHIN_S = 20.0
 """How long `swarm fault kill|restart router` waits for the launcher behind the new router."""
+KERNELS_ENV = "SWARM_KERNELS"
+"""robot_firmware.control.kernels.KERNELS_ENV, spelt out: importing that module settles how
+this process runs the kernels, which `_run_jit_kernels` must do first."""
+JIT_KERNEL_COMMANDS = frozenset({"sim", "tune", "world"})
+"""The commands whose own numba kernels call the control kernels (the batch simulator's, the
+world's): they need numba's JIT for those, whatever $SWARM_KERNELS says (`aot` is a robot
+process's setting; robot_firmware/control/kernels.py)."""
 
 
 class UsageError(Exception):
@@ -92,7 +99,7 @@ MAX_SPEED_HELP = (
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
-    from services.sim.run import simulate_scenario
+    from services.sim.run import output_names, simulate_scenario
     from swarm_config.scenario import load_scenario, parse_scenario
 
     scenario = load_scenario(Path(args.scenario))
@@ -109,7 +116,9 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         scenario = parse_scenario(
             {**scenario.model_dump(), **updates}, f"{args.scenario} with {given}"
         )
-    out_dir = prepare_output_folder(Path(args.out), "--out")
+    out_dir = prepare_output_folder(
+        Path(args.out), "--out", writes=output_names(figures=not args.no_figures)
+    )
     outputs = simulate_scenario(
         scenario, out_dir, compare=not args.no_compare, figures=not args.no_figures
     )
@@ -1019,8 +1028,9 @@ def _operator_credentials(given: str | None) -> ProcessCredentials:
 def _swarm(args: argparse.Namespace) -> str:
     """The swarm name of --swarm, else $SWARM_NAME, else lab; UsageError naming where a name
     that cannot be a key chunk came from."""
-    source = "--swarm" if args.swarm else "$SWARM_NAME"
-    swarm: str = args.swarm or os.environ.get("SWARM_NAME") or "lab"
+    # A given --swarm is checked as given: '' (an unset variable, `--swarm "$SWARM"`) was lab.
+    source = "--swarm" if args.swarm is not None else "$SWARM_NAME"
+    swarm: str = args.swarm if args.swarm is not None else os.environ.get("SWARM_NAME") or "lab"
     try:
         return check_name("swarm", swarm)
     except ValueError as exc:
@@ -1392,6 +1402,35 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _run_jit_kernels(command: str | None) -> str | None:
+    """Have this process run the control kernels with numba's JIT when `command` is one of
+    `JIT_KERNEL_COMMANDS`, even under SWARM_KERNELS=aot: a kernel of the batch simulator or the
+    world cannot call a kernel of the ahead-of-time module (numba failed to compile it, "Cannot
+    determine Numba type of AotKernel", whenever its cache was cold).  The variable is left as
+    it was.  Returns what is wrong when this process already runs them otherwise (a caller of
+    `main` that imported them under SWARM_KERNELS=aot), else None."""
+    if command not in JIT_KERNEL_COMMANDS:
+        return None
+    kernels = sys.modules.get("robot_firmware.control.kernels")
+    if kernels is not None:
+        mode: str = kernels.MODE
+        if mode == "jit":
+            return None
+        return (
+            f"this process already runs the control kernels {mode} (${KERNELS_ENV}); swarm "
+            f"{command} needs numba's JIT: run it with {KERNELS_ENV} unset or jit"
+        )
+    wanted = os.environ.get(KERNELS_ENV)
+    if wanted != "aot":  # unset and jit are the JIT; another value says so and uses it too
+        return None
+    os.environ[KERNELS_ENV] = "jit"
+    try:
+        import robot_firmware.control.kernels  # noqa: F401  (the mode is settled on import)
+    finally:
+        os.environ[KERNELS_ENV] = wanted
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         set_up_logging()
@@ -1402,6 +1441,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:  # this process's own command: a caller's in-process call keeps its SIGINT
         interrupt_once()
     given = sys.argv[1:] if argv is None else list(argv)
+    kernels_problem = _run_jit_kernels(given[0] if given else None)
+    if kernels_problem is not None:
+        print(f"swarm {given[0]}: {kernels_problem}", file=sys.stderr)
+        return EXIT_USAGE
     parser = build_parser(given[0] if given else None)
     args = parser.parse_args(given)
     if args.command is None:

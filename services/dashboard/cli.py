@@ -29,6 +29,7 @@ from services.launcher.run_lock import (
     RunDirectoryLock,
 )
 from services.output_folder import OutputFolderError, prepare_output_folder
+from services.path_arguments import broken_link_problem
 from services.stop_signals import stop_on_signals
 from swarm_config.credentials import (
     CREDENTIALS_FILE_ENV,
@@ -128,6 +129,24 @@ def run_dashboard(args: argparse.Namespace) -> int:
             )
 
 
+def _not_a_recording_file(path: Path) -> str | None:
+    """Why `path` cannot be a recording without reading it (it is no regular file: missing, a
+    folder, a device, a link to nothing), else None."""
+    try:
+        if path.is_file():
+            return None
+        if path.is_dir():
+            return f"{path} is a folder, not a recording (give its .rrd file)"
+        if path.exists():
+            return f"{path} is not a regular file (a device, FIFO or socket), not a recording"
+        broken_link = broken_link_problem(path)
+        if broken_link is not None:
+            return broken_link
+    except OSError as exc:  # a name too long
+        return f"{path}: cannot use it ({exc.strerror or exc})"
+    return f"{path}: no such recording"
+
+
 def run_replay(args: argparse.Namespace) -> int:
     """`swarm replay FILE.rrd`: serve a recorded run to the web viewer."""
     from services.dashboard.live import viewer_url
@@ -135,9 +154,16 @@ def run_replay(args: argparse.Namespace) -> int:
     from services.dashboard.replay import replay_command, serve_recording, server_memory_limit_for
     from services.listen_ports import check_port_free
 
+    if args.web_port == args.grpc_port:
+        return _usage_error(
+            "replay",
+            f"--web-port and --grpc-port are both {args.web_port}: the web viewer and the data "
+            "server each need a port of their own",
+        )
     recording = Path(args.recording)
-    if not recording.is_file():
-        return _usage_error("replay", f"{recording}: no such recording")
+    not_a_recording = _not_a_recording_file(recording)
+    if not_a_recording is not None:
+        return _usage_error("replay", not_a_recording)
     try:
         recording_readable = looks_like_recording(recording)
     except OSError as exc:

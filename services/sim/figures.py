@@ -40,6 +40,13 @@ def colour(index: int) -> str:
     return ROBOT_COLOURS[index % len(ROBOT_COLOURS)]
 
 
+PATHS_FIGURE = "fig11_paths.png"
+LEADER_ERROR_FIGURE = "fig12_leader_tracking_error.png"
+FORMATION_ERRORS_FIGURE = "fig13_formation_errors.png"
+FIGURE_NAMES = (PATHS_FIGURE, LEADER_ERROR_FIGURE, FORMATION_ERRORS_FIGURE)
+"""The files `write_figures` writes in its folder."""
+
+
 def write_figures(
     scenario: Scenario, trace: dict[str, FloatArray], out_dir: Path, batch_index: int = 0
 ) -> list[Path]:
@@ -87,7 +94,7 @@ def _paths_figure(
     ax.set_title(f"Fig. 11: paths ({scenario.name}); circles: bodies, x: formation slots")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(True, lw=0.3)
-    return save_figure(fig, out_dir / "fig11_paths.png", dpi=110, bbox_inches="tight")
+    return save_figure(fig, out_dir / PATHS_FIGURE, dpi=110, bbox_inches="tight")
 
 
 def _leader_error_figure(t: FloatArray, errors: FloatArray, name: str, out_dir: Path) -> Path:
@@ -102,9 +109,7 @@ def _leader_error_figure(t: FloatArray, errors: FloatArray, name: str, out_dir: 
     ax_th.set_xlabel("t (s)")
     ax_th.grid(True, lw=0.3)
     ax_xy.set_title(f"Fig. 12: tracking error of the leader {name}")
-    return save_figure(
-        fig, out_dir / "fig12_leader_tracking_error.png", dpi=110, bbox_inches="tight"
-    )
+    return save_figure(fig, out_dir / LEADER_ERROR_FIGURE, dpi=110, bbox_inches="tight")
 
 
 def _formation_error_figure(
@@ -123,4 +128,4 @@ def _formation_error_figure(
     ax.set_title("Fig. 13: formation errors of the followers (slot from the leader's true pose)")
     ax.legend(fontsize=8, ncol=2)
     ax.grid(True, lw=0.3)
-    return save_figure(fig, out_dir / "fig13_formation_errors.png", dpi=110, bbox_inches="tight")
+    return save_figure(fig, out_dir / FORMATION_ERRORS_FIGURE, dpi=110, bbox_inches="tight")

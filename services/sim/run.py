@@ -18,7 +18,7 @@ import numpy as np
 
 from robot_firmware.control.fuzzy import FuzzyRuleBase
 from services.sim.batch import run_batch
-from services.sim.figures import write_figures
+from services.sim.figures import FIGURE_NAMES, write_figures
 from swarm_config.scenario import Scenario, load_rule_base
 from world.summary import build_summary, controller_label, write_json_atomically
 
@@ -53,6 +53,14 @@ def fault_campaign_warning(scenario: Scenario) -> str | None:
         f"warning: the batch simulator does not apply this scenario's faults ({faults}); it "
         "runs without them. `swarm up` (or `swarm up --lockstep`) runs the campaign"
     )
+
+
+SUMMARY_NAME = "summary.json"
+
+
+def output_names(figures: bool = True) -> tuple[str, ...]:
+    """The files `simulate_scenario` writes in its folder."""
+    return (SUMMARY_NAME, *(FIGURE_NAMES if figures else ()))
 
 
 def simulate_scenario(
@@ -109,7 +117,7 @@ def simulate_scenario(
         delivered[0],
         comparison,
     )
-    summary_path = out_dir / "summary.json"
+    summary_path = out_dir / SUMMARY_NAME
     write_json_atomically(summary_path, summary)
     figure_paths: list[Path] = []
     if figures and result.trace is not None:

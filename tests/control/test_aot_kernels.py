@@ -142,6 +142,55 @@ def test_unknown_kernel_mode_is_named_and_the_jit_runs() -> None:
     assert "SWARM_KERNELS='fast' is not one of" in ran.stderr.decode()
 
 
+JIT_COMMAND = """
+import os
+from services.cli.main import main
+code = main({argv!r})
+from robot_firmware.control import kernels
+print(code, kernels.MODE, os.environ["SWARM_KERNELS"])
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["sim", "tune"])
+def test_sim_and_tune_run_the_jit_under_swarm_kernels_aot(
+    aot_built: Path, tmp_path: Path, command: str
+) -> None:
+    """SWARM_KERNELS=aot is a robot process's setting: the batch simulator's kernels call the
+    control kernels, which must be numba's.  Before, sim and tune took the ahead-of-time
+    module's functions and numba failed to compile the simulator's tick ("Cannot determine
+    Numba type of AotKernel") whenever its cache was cold, after making the output folder."""
+    out = str(tmp_path / "run")
+    paper = "configs/scenarios/paper.yaml"
+    argv = {
+        "sim": ["sim", "--scenario", paper, "--out", out, "--duration", "0.5", "--no-figures"],
+        "tune": ["tune", "--scenario", paper, "--out", out, "--budget", "2", "--duration", "0.1"],
+    }[command]
+    ran = run_python(JIT_COMMAND.format(argv=argv), {"SWARM_KERNELS": "aot"})
+    assert ran.returncode == 0, ran.stderr.decode()
+    # The command ran on the JIT; the variable is left as it was for the caller.
+    assert ran.stdout.decode().splitlines()[-1].split() == ["0", "jit", "aot"]
+
+
+def test_sim_in_a_process_already_on_the_aot_module_is_refused_in_one_line(
+    aot_built: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "run"
+    code = (
+        "from robot_firmware.control import kernels\n"
+        "from services.cli.main import main\n"
+        f"print(main(['sim', '--out', {str(out)!r}, '--duration', '0.5']))\n"
+    )
+    ran = run_python(code, {"SWARM_KERNELS": "aot"})
+    assert ran.returncode == 0, ran.stderr.decode()
+    assert ran.stdout.decode().split() == ["2"]
+    assert ran.stderr.decode().splitlines() == [
+        "swarm sim: this process already runs the control kernels aot ($SWARM_KERNELS); swarm "
+        "sim needs numba's JIT: run it with SWARM_KERNELS unset or jit"
+    ]
+    assert not out.exists()
+
+
 def test_call_with_other_types_runs_the_python_function() -> None:
     compiled_calls: list[object] = []
 

@@ -133,3 +133,70 @@ def test_a_sysfs_folder_is_refused_naming_the_option_with_status_2(
     assert lines == [
         f"swarm {command}: {option} {SYSFS_FOLDER}: cannot write in the folder (Permission denied)"
     ], lines
+
+
+@pytest.mark.parametrize("below", [False, True], ids=["the folder", "a parent"])
+def test_a_symbolic_link_to_nothing_is_named_as_one(tmp_path: Path, below: bool) -> None:
+    # Before: "cannot create the folder (a part of the path is a file)".
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "nowhere" / "x")
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    for link, what in (
+        (dangling, f"{dangling} is a symbolic link to {tmp_path / 'nowhere' / 'x'}, which "),
+        (loop, f"{loop} is a symbolic link in a loop of links"),
+    ):
+        target = link / "run" if below else link
+        with pytest.raises(OutputFolderError) as info:
+            prepare_output_folder(target, "--out")
+        assert str(info.value).startswith(f"--out {target}: cannot create the folder ({what}")
+        assert link.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling", "loop"]
+
+
+def _path_of_length(root: Path, length: int) -> Path:
+    """A path under `root` of `length` bytes, in names of 20 characters at most."""
+    path = str(root)
+    while len(path) < length:
+        path += "/" + "d" * min(20, length - len(path) - 1)
+    assert len(path) == length
+    return Path(path)
+
+
+def test_a_path_too_long_for_the_files_written_in_it_is_refused_before_any_folder(
+    tmp_path: Path,
+) -> None:
+    # Before, the folders were made (under PATH_MAX), the write check failed in the deepest,
+    # and every folder made stayed.
+    folder = _path_of_length(tmp_path, os.pathconf(tmp_path, "PC_PATH_MAX") - 10)
+    with pytest.raises(OutputFolderError) as info:
+        prepare_output_folder(folder, "--out")
+    assert str(info.value).startswith(f"--out {folder}: the path ({len(str(folder)):,} bytes)")
+    assert "leaves no room for the names of the files written in it" in str(info.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_path_too_long_for_sims_figures_is_refused_before_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Room for the write check's file and summary.json, none for the figures' temporary files
+    # (.fig12_leader_tracking_error.png.XXXXXXXX): before, the run went through and failed on
+    # its second figure, status 1.
+    folder = _path_of_length(tmp_path, os.pathconf(tmp_path, "PC_PATH_MAX") - 40)
+    argv = ["sim", "--scenario", str(PAPER), "--duration", "0.5", "--out", str(folder)]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "leaves no room for the names of the files" in lines[0], lines
+    assert list(tmp_path.iterdir()) == []
+    assert main([*argv, "--no-figures"]) == 0  # summary.json alone fits
+    assert [p.name for p in folder.iterdir()] == ["summary.json"]
+
+
+def test_the_folders_made_for_a_refused_folder_are_removed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "a" / "b" / "run"
+    monkeypatch.setattr(os, "access", lambda path, mode: False)
+    with pytest.raises(OutputFolderError, match="cannot write in the folder"):
+        prepare_output_folder(folder, "--out")
+    assert list(tmp_path.iterdir()) == []

@@ -55,6 +55,59 @@ def test_the_file_names_the_command_that_recreates_it(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "args",
     [
+        ["--robots", "4", "--speed-mps", "0.123456", "--spacing-m", "1.23456"],
+        ["--robots", "3", "--speed-mps", "0.00001"],
+        [
+            "--robots",
+            "3",
+            "--speed-mps",
+            "1e-5",
+            "--size-m",
+            "3.3333333333333335",
+            "--obstacles",
+            "0",
+        ],
+        [
+            "--robots",
+            "7",
+            "--formation",
+            "grid",
+            "--trajectory",
+            "lemniscate",
+            "--duration",
+            "12.345678901",
+        ],
+        ["--robots", "5", "--trajectory", "polyline", "--speed-mps", "0.30000000000000004"],
+        [
+            "--robots",
+            "2",
+            "--formation",
+            "line",
+            "--obstacles",
+            "0",
+            "--seed",
+            str(2**70),
+            "--name=-dash",
+        ],
+    ],
+)
+def test_the_header_command_recreates_the_file_for_unusual_values(
+    tmp_path: Path, args: list[str]
+) -> None:
+    # Before, the header rounded the flags (--spacing-m 1.23456 as 1.2346: other slots;
+    # --speed-mps 0.00001 as 0.0: refused).
+    first = tmp_path / "first.yaml"
+    assert main(["scenario", "generate", *args, "--out", str(first)]) == 0
+    header = first.read_text().splitlines()[1]
+    assert header.startswith("#   swarm scenario generate ")
+    again = tmp_path / "again.yaml"
+    assert main([*header.split()[2:], "--out", str(again)]) == 0
+    assert again.read_bytes() == first.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
         ["--robots", "0"],
         ["--robots", "three"],
         ["--robots", "3", "--formation", "star"],

@@ -330,3 +330,16 @@ def test_a_boolean_field_still_takes_a_boolean_and_a_fuzzy_file_refuses_one_for_
     scenario.write_text(PAPER.read_text() + "\nfuzzy_parameter_file: fuzzy.yaml\n")
     with pytest.raises(ScenarioError, match=r"error_centres\.0: a number, not false"):
         load_rule_base(load_scenario(scenario))
+
+
+@pytest.mark.parametrize("name", ["world", "router", "launcher", "dashboard", "operator"])
+def test_a_robot_named_as_a_service_of_the_run_is_refused_naming_the_field(name: str) -> None:
+    # Before, `swarm sim` ran it and `swarm credentials` refused it naming neither the robot
+    # nor the field.
+    data = _paper_data()
+    data["robots"][1]["name"] = name
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(data, "bad.yaml")
+    assert f"  robots.1.name: {name!r} is reserved for a service of the run" in str(info.value)
+    data["robots"][1]["name"] = f"{name}2"  # only the name itself is taken
+    assert parse_scenario(data, "good.yaml").robot_names[1] == f"{name}2"

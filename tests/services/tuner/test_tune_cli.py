@@ -276,6 +276,15 @@ def test_a_second_tune_in_the_folder_of_a_running_one_is_refused(tmp_path: Path)
     assert first.returncode == 130
 
 
+def _change_field(checkpoint: Path, field: str, value: Callable[[Any], Any]) -> None:
+    """Rewrite one field of a checkpoint archive, as someone editing it by hand would."""
+    with np.load(checkpoint, allow_pickle=False) as archive:
+        fields = {key: archive[key] for key in archive.files}
+    fields[field] = value(fields[field])
+    with checkpoint.open("wb") as handle:
+        np.savez(handle, **fields)
+
+
 @pytest.mark.parametrize(
     ("field", "value", "named"),
     [
@@ -293,11 +302,7 @@ def test_resume_from_a_checkpoint_with_a_field_changed_is_one_line_and_status_2(
     out = tmp_path / "tune"
     assert run_tune(tune_args("--scenario", str(PAPER), "--out", str(out), *TINY)) == 0
     checkpoint = out / "ofa" / "checkpoint.npz"
-    with np.load(checkpoint, allow_pickle=False) as archive:
-        fields = {key: archive[key] for key in archive.files}
-    fields[field] = value(fields[field])
-    with checkpoint.open("wb") as handle:
-        np.savez(handle, **fields)
+    _change_field(checkpoint, field, value)
     best_before = (out / "best_fuzzy.yaml").read_bytes()
     capsys.readouterr()
     resume = tune_args("--scenario", str(PAPER), "--out", str(out), "--resume", *TINY)
@@ -349,11 +354,7 @@ def test_resume_from_a_checkpoint_with_a_value_no_run_writes_is_one_line_and_sta
     out = tmp_path / "tune"
     shutil.copytree(finished_ofa_run, out)
     checkpoint = out / "ofa" / "checkpoint.npz"
-    with np.load(checkpoint, allow_pickle=False) as archive:
-        fields = {key: archive[key] for key in archive.files}
-    fields[field] = value(fields[field])
-    with checkpoint.open("wb") as handle:
-        np.savez(handle, **fields)
+    _change_field(checkpoint, field, value)
     kept = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     resume = tune_args("--scenario", str(PAPER), "--out", str(out), "--resume", *TINY)
     with pytest.raises(ValueError) as refused:  # the swarm command prints it, status 2
