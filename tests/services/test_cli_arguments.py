@@ -6,7 +6,6 @@ import sys
 from pathlib import Path
 
 import pytest
-import zenoh
 
 from services.cli.main import PARAMS_FILE_BYTES_MAX, main
 from swarm_config.credentials import (
@@ -15,6 +14,7 @@ from swarm_config.credentials import (
     generate_credential_set,
     write_credential_set,
 )
+from tests.support.cli_refusals import forbid_zenoh_sessions, refusal_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 NOBODY = "tcp/127.0.0.1:9"
@@ -24,22 +24,11 @@ NOBODY = "tcp/127.0.0.1:9"
 @pytest.fixture(autouse=True)
 def _no_session_may_open(monkeypatch: pytest.MonkeyPatch) -> None:
     """Each refusal here must come before the command opens a Zenoh session."""
-
-    def refuse(*_args: object, **_kwargs: object) -> None:
-        raise AssertionError("the command opened a Zenoh session before refusing")
-
-    monkeypatch.setattr(zenoh, "open", refuse)
+    forbid_zenoh_sessions(monkeypatch)
 
 
 def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    try:
-        status = main(argv)
-    except SystemExit as exc:  # argparse's own refusal
-        status = int(exc.code or 0)
-    err = capsys.readouterr().err
-    assert status == 2, err
-    assert "Traceback" not in err
-    return err.strip().splitlines()[-1]
+    return refusal_lines(argv, capsys)[-1]
 
 
 @pytest.mark.parametrize(

@@ -1,5 +1,5 @@
-"""Refusals the tester's hunt of the offline commands found missing or misleading: each one
-line, status 2, before anything starts, connects or is written."""
+"""Refusals of the offline commands and of the command line's own checks: each one line,
+status 2, before anything starts, connects or is written."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import os
 from pathlib import Path
 
 import pytest
-import zenoh
 
 from services.cli.main import main
 from swarm_config.credentials import generate_credential_set, write_credential_set
+from tests.support.cli_refusals import forbid_zenoh_sessions, refusal_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "configs" / "scenarios" / "paper.yaml"
@@ -20,22 +20,11 @@ NOBODY = "tcp/127.0.0.1:9"
 @pytest.fixture(autouse=True)
 def _no_session_may_open(monkeypatch: pytest.MonkeyPatch) -> None:
     """Each refusal here must come before the command opens a Zenoh session."""
-
-    def refuse(*_args: object, **_kwargs: object) -> None:
-        raise AssertionError("the command opened a Zenoh session before refusing")
-
-    monkeypatch.setattr(zenoh, "open", refuse)
+    forbid_zenoh_sessions(monkeypatch)
 
 
 def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    try:
-        status = main(argv)
-    except SystemExit as exc:  # argparse's own refusal
-        status = int(exc.code or 0)
-    err = capsys.readouterr().err
-    assert status == 2, err
-    assert "Traceback" not in err
-    lines = err.strip().splitlines()
+    lines = refusal_lines(argv, capsys)
     assert len(lines) == 1, lines
     return lines[0]
 
