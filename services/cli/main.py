@@ -585,7 +585,30 @@ def _no_answer(args: argparse.Namespace, target: str) -> UsageError:
     down, stopped or exited), else suggesting that no swarm runs there."""
     where = f"no answer from {target} of swarm {_swarm(args)!r} at {_endpoints(args.connect)[0]}"
     why = None if target == "launcher" else _why_no_answer(args, target)
+    why = why or _why_launcher_silent(args)
     return UsageError(f"{where} ({why or 'is it running? start one with `swarm up`'})")
+
+
+def _why_launcher_silent(args: argparse.Namespace) -> str | None:
+    """What this host knows of a launcher that did not answer: the `swarm up` whose
+    credentials this command uses holds their folder's lock (services/launcher/run_lock.py),
+    which names its process.  None when no such process runs here."""
+    from services.launcher.process_state import STOPPED_STATES, process_state
+    from services.launcher.run_lock import LOCK_FILE_NAME
+
+    source = args.credentials or os.environ.get(CREDENTIALS_FILE_ENV)
+    path = Path(source) if source else DEFAULT_OPERATOR_CREDENTIALS
+    try:
+        text = (path.parent / LOCK_FILE_NAME).read_text(encoding="ascii", errors="replace")
+        cmdline = Path(f"/proc/{int(text.strip())}/cmdline").read_bytes().split(b"\0")
+        pid = int(text.strip())
+    except (OSError, ValueError):
+        return None
+    if b"up" not in cmdline:  # the pid of a launcher long gone, now another process's
+        return None
+    if process_state(pid) in STOPPED_STATES:
+        return f"the launcher of this run (pid {pid}) is stopped: `kill -CONT {pid}` continues it"
+    return f"the launcher of this run (pid {pid}) runs but did not answer in time"
 
 
 LAUNCHER_ASKED_WHY_TIMEOUT_S = 1.0

@@ -80,6 +80,7 @@ from robot_firmware.net.messages import (
 from robot_firmware.net.session import open_client
 from services.launcher.open_files import open_file_limit_problem, router_files_needed
 from services.launcher.orphans import LAUNCHER_PID_ENV
+from services.launcher.process_state import STOPPED_STATES, process_state
 from services.launcher.run_lock import RunDirectoryBusyError, RunDirectoryLock
 from services.listen_ports import bind_problem, endpoint_listen_problem
 from services.output_folder import prepare_output_folder
@@ -168,20 +169,6 @@ class Child:
 
 
 ProcessFactory = Callable[[list[str], IO[bytes], dict[str, str]], "subprocess.Popen[bytes]"]
-
-STOPPED_STATES = ("T", "t")
-"""/proc/PID/stat states of a stopped process: by a signal, or by a debugger."""
-
-
-def process_state(pid: int) -> str | None:
-    """The state letter of /proc/PID/stat (R, S, D, T, t, Z, ...), None where it cannot be
-    read (not Linux, the process gone)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text(encoding="ascii", errors="replace")
-    except OSError:
-        return None
-    fields = stat[stat.rfind(")") + 1 :].split()  # the name in parentheses may hold spaces
-    return fields[0] if fields else None
 
 
 def default_factory(

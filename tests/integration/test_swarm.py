@@ -650,6 +650,25 @@ def test_killed_robot_leaves_and_a_restarted_one_comes_back(live_swarm: LiveSwar
     assert unknown.returncode == 1 and "no process 'robot7'" in unknown.stdout
 
 
+def test_a_stopped_launcher_is_named_when_it_does_not_answer(live_swarm: LiveSwarm) -> None:
+    """Before: "no answer from launcher ... (is it running? start one with `swarm up`)", with
+    the swarm running and its launcher stopped with `kill -STOP`."""
+    live = live_swarm
+    live.all_running()
+    pid = live.process.pid
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        silent = live.cli("status", "--timeout", "1")
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    assert silent.returncode == 2, silent.stderr
+    assert (
+        f"(the launcher of this run (pid {pid}) is stopped: `kill -CONT {pid}` continues it)"
+        in silent.stderr
+    ), silent.stderr
+    live.all_running()  # continued, it answers again
+
+
 def test_a_world_stopped_from_outside_the_launcher_is_started_again(live_swarm: LiveSwarm) -> None:
     """`kill PID` of the world (SIGTERM from a user or a service manager, not the launcher).
     Before, the world wrote its final summary and exited 0, which the launcher took for the
