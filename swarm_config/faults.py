@@ -23,12 +23,13 @@ run's `events.jsonl`.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Annotated, Any, Literal
+from collections.abc import Mapping, Sequence
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from swarm_config.radio import BurstLoss
+from swarm_config.settings import boolean_number_problems
 
 PROCESS_ROLES = ("world", "router", "dashboard")
 """Process names other than robots' that process faults accept."""
@@ -235,6 +236,30 @@ Fault = Annotated[
 FAULT_ADAPTER: TypeAdapter[Fault] = TypeAdapter(Fault)
 """`FAULT_ADAPTER.validate_python(obj)` / `.validate_json(bytes)`: one fault, or a
 `ValidationError` that names the field."""
+
+
+def fault_name(model: type[BaseModel]) -> str:
+    """The `fault` value of one fault model."""
+    (name,) = get_args(model.model_fields["fault"].annotation)
+    return str(name)
+
+
+FAULT_MODELS: dict[str, type[BaseModel]] = {
+    fault_name(model): model
+    for model in get_args(get_args(Fault)[0])  # Annotated[Union[...], Field] -> the models
+}
+"""Every fault's model by its `fault` value."""
+
+
+def fault_boolean_problems(data: object) -> list[str]:
+    """'field: a number, not true' for every number field of a fault given as a mapping (JSON,
+    `swarm fault --json`, the world's `fault` verb) that is given a boolean, which pydantic
+    would take for 1 or 0 (swarm_config/settings.py `boolean_number_problems`)."""
+    if not isinstance(data, Mapping):
+        return []
+    model = FAULT_MODELS.get(str(data.get("fault")))
+    return [] if model is None else boolean_number_problems(model, data)
+
 
 REGISTER_FAULTS = (
     EncoderStuckFault,

@@ -89,11 +89,12 @@ from swarm_config.faults import (
     PartitionFault,
     RunEvent,
     ScheduledFault,
+    fault_boolean_problems,
     fault_subjects,
     swarm_fault_problem,
 )
 from swarm_config.radio import BurstLoss, LinkProfile
-from swarm_config.settings import describe_validation_error
+from swarm_config.settings import describe_problems, describe_validation_error
 from world.checkpoint import CheckpointError, decode_array, encode_array
 from world.radio import LinkTable
 from world.write_failures import WriteFailures
@@ -622,6 +623,17 @@ class FaultHub:
         is answered once the robot or the launcher has (`poll`).  A forward goes with the
         request's own deadline, when it has one: its sender stops waiting then, and the robot
         or the launcher must not carry out what the sender was told had no answer."""
+        try:
+            booleans = fault_boolean_problems(json.loads(body))
+        except (ValueError, RecursionError):  # not JSON: the adapter below says so
+            booleans = []
+        if booleans:  # pydantic would take true for 1: `"extra_ms": true` was 1 ms
+            refusal = AdminError(
+                error=describe_problems("invalid fault", booleans),
+                reason=AdminRefusal.INVALID_REQUEST,
+            )
+            self._record_refusal(None, "admin", refusal)
+            return refusal
         try:
             fault: Fault = FAULT_ADAPTER.validate_json(body)
         except ValidationError as exc:

@@ -19,27 +19,23 @@ import json
 import textwrap
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, get_args
+from typing import Any
 
-from pydantic import BaseModel, ValidationError
+from pydantic import ValidationError
 
-from swarm_config.faults import FAULT_ADAPTER, FAULT_NAMES, REGISTER_FAULTS, Fault
+from swarm_config.faults import (
+    FAULT_ADAPTER,
+    FAULT_MODELS,
+    FAULT_NAMES,
+    REGISTER_FAULTS,
+    Fault,
+    fault_boolean_problems,
+    fault_name,
+)
 
 
 class FaultArgumentError(ValueError):
     """The arguments do not describe a valid fault; the message names the field and flag."""
-
-
-def _fault_name(model: type[BaseModel]) -> str:
-    (name,) = get_args(model.model_fields["fault"].annotation)
-    return str(name)
-
-
-FAULT_MODELS: dict[str, type[BaseModel]] = {
-    _fault_name(model): model
-    for model in get_args(get_args(Fault)[0])  # Annotated[Union[...], Field] -> the models
-}
-"""Every fault's model by its `fault` value."""
 
 
 @dataclass(frozen=True)
@@ -301,7 +297,7 @@ def add_fault_parser(
     kinds = (
         ("process", "kill, stop, cont, restart"),
         ("network", "net, partition, heal"),
-        ("register", ", ".join(command_name(_fault_name(m)) for m in REGISTER_FAULTS)),
+        ("register", ", ".join(command_name(fault_name(m)) for m in REGISTER_FAULTS)),
     )
     fault = sub.add_parser(
         "fault",
@@ -389,6 +385,9 @@ def fault_from_json(text: str) -> Fault:
         raise FaultArgumentError(
             f"fault: {data.get('fault')!r} is not a fault; use one of {', '.join(FAULT_NAMES)}"
         )
+    booleans = fault_boolean_problems(data)
+    if booleans:  # pydantic would take true for 1: `"extra_ms": true` was 1 ms
+        raise FaultArgumentError(f"--json: {booleans[0]}")
     try:
         return FAULT_ADAPTER.validate_python(data)
     except ValidationError as exc:

@@ -178,6 +178,12 @@ def test_admin_options_count_before_and_after_the_subcommand() -> None:
         (["--json", '{"fault": "kill", "process": "robot2", "extra": 1}'], "extra"),
         (["--json", '{"fault": "melt", "robot": "robot2"}'], "'melt' is not a fault"),
         (["--json", "{not json"], "--json is not JSON"),
+        # Before, true was taken for 1: a 1 ms tick_slow, bit 1 of an encoder.
+        (["--json", '{"fault": "tick_slow", "robot": "robot2", "extra_ms": true}'], "extra_ms"),
+        (
+            ["--json", '{"fault": "net", "latency_ms": false}'],
+            "--json: latency_ms: a number, not false",
+        ),
         (["--json", "[" * 100_000 + "]" * 100_000], "--json is not JSON"),
         (["--json", '"kill"'], "one JSON object"),
         (["--json", '{"fault": "heal"}', "heal"], "not both"),

@@ -487,6 +487,9 @@ OK = b'{"ok": true}'
         # Before, both were taken: a robot named twice, and a partition that cuts nobody off.
         (_body(fault="partition", robots=["robot1", "robot1"]), AdminRefusal.INVALID_REQUEST),
         (_body(fault="partition", robots=list(NAMES)), AdminRefusal.INVALID_REQUEST),
+        # Before, pydantic took true for 1: a 1 ms tick_slow, a 1 ms latency.
+        (_body(fault="tick_slow", robot="robot1", extra_ms=True), AdminRefusal.INVALID_REQUEST),
+        (_body(fault="net", latency_ms=True), AdminRefusal.INVALID_REQUEST),
     ],
 )
 def test_a_bad_fault_is_refused_with_its_reason_recorded_and_changes_nothing(
