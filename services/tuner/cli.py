@@ -53,6 +53,7 @@ from services.launcher.run_lock import (
     RunDirectoryLock,
 )
 from services.output_folder import OutputFolderError, prepare_output_folder
+from services.sim.run import fault_campaign_warning
 from services.stop_signals import EXIT_INTERRUPTED
 from services.tuner.checkpoint import CheckpointDamagedError
 from services.tuner.cluster import ClusterError, RayCluster, connect_cluster
@@ -252,6 +253,9 @@ def run_tune(args: argparse.Namespace) -> int:
         raise
     except ValueError as exc:
         raise TuneArgumentError(str(exc)) from None
+    warning = fault_campaign_warning(scenario)  # its evaluations are batch simulations
+    if warning is not None:
+        print(f"swarm tune: {warning}", file=sys.stderr, flush=True)
     try:
         return _tune_and_report(
             args,

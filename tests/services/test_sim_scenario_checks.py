@@ -45,6 +45,22 @@ def test_a_fault_campaign_gets_one_warning_line_naming_swarm_up(
     assert capsys.readouterr().err == ""
 
 
+def test_a_tune_of_a_scenario_with_faults_warns_once_that_they_are_not_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`swarm tune` evaluates candidates in the batch simulator, which runs no faults either."""
+    faults = [{"at_s": 0.5, "fault": {"fault": "kill", "process": "robot2"}}]
+    scenario = _paper_with(tmp_path, faults=faults)
+    argv = ["tune", "--scenario", str(scenario), "--out", str(tmp_path / "tune")]
+    assert main([*argv, "--algo", "pso", "--budget", "20", "--duration", "1.0"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "faults" in line]
+    assert warnings == [
+        "swarm tune: warning: the batch simulator does not apply this scenario's faults "
+        "(1 scheduled fault); it runs without them. `swarm up` (or `swarm up --lockstep`) runs "
+        "the campaign"
+    ]
+
+
 @pytest.mark.parametrize(
     ("section", "value", "named"),
     [
