@@ -594,15 +594,15 @@ def _why_launcher_silent(args: argparse.Namespace) -> str | None:
     credentials this command uses holds their folder's lock (services/launcher/run_lock.py),
     which names its process.  None when no such process runs here."""
     from services.launcher.process_state import STOPPED_STATES, process_state
-    from services.launcher.run_lock import LOCK_FILE_NAME
+    from services.launcher.run_lock import recorded_holder
 
     source = args.credentials or os.environ.get(CREDENTIALS_FILE_ENV)
-    path = Path(source) if source else DEFAULT_OPERATOR_CREDENTIALS
+    pid = recorded_holder((Path(source) if source else DEFAULT_OPERATOR_CREDENTIALS).parent)
+    if pid is None:
+        return None
     try:
-        text = (path.parent / LOCK_FILE_NAME).read_text(encoding="ascii", errors="replace")
-        cmdline = Path(f"/proc/{int(text.strip())}/cmdline").read_bytes().split(b"\0")
-        pid = int(text.strip())
-    except (OSError, ValueError):
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
         return None
     if b"up" not in cmdline:  # the pid of a launcher long gone, now another process's
         return None

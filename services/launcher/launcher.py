@@ -409,10 +409,10 @@ class Launcher:
             self.credentials_dir = plan.credentials_dir
             given = read_credential_set(plan.credentials_dir, plan.robots)
             self.credentials = given.with_new_run_id()
+        listen = list(plan.router_listen_endpoints)
         if plan.across_hosts:
             self.tls = read_tls_files(tls_dir(self.credentials_dir)) if plan.uses_tls else None
             check_router_links(plan.link_connect, plan.link_listen, self.tls)
-            listen = list(plan.router_listen_endpoints)
             self._locks = self._lock_directories()  # before the first write
             logs.mkdir(parents=True, exist_ok=True)
             router_config = write_router_config(
@@ -433,14 +433,12 @@ class Launcher:
             logs.mkdir(parents=True, exist_ok=True)
             self.credential_files = write_credential_set(self.credentials_dir, self.credentials)
             self.tls = self._tls_files() if plan.uses_tls else None
-            listen = list(plan.router_listen_endpoints)
             router_config = write_router_config(
                 self.credentials_dir, self.credentials, listen, self.tls
             )
-        self.router_listen_endpoints = tuple(listen)
         # The run's own copy of its scenario: restarts read it, whatever becomes of the file.
-        scenario = str(snapshot_scenario(plan.scenario, plan.out_dir))
-        self.scenario_copy = Path(scenario)
+        self.scenario_copy = snapshot_scenario(plan.scenario, plan.out_dir)
+        scenario = str(self.scenario_copy)
         if plan.runs_world:
             # A world resumes from the checkpoints in its folder: those of an earlier run there
             # would make this run carry on from that one's end (its time, bodies, counters).

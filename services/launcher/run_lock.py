@@ -62,7 +62,7 @@ class RunDirectoryLock:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.read(descriptor, 32).decode("ascii", "replace").strip() or "unknown"
+            holder = _pid_text(os.read(descriptor, 32)) or "unknown"
             os.close(descriptor)
             raise RunDirectoryBusyError(
                 f"{directory} is the {what} of another `{command}` that is still running "
@@ -82,3 +82,17 @@ class RunDirectoryLock:
         if self._descriptor is not None:
             os.close(self._descriptor)  # closing the file drops its flock
             self._descriptor = None
+
+
+def _pid_text(written: bytes) -> str:
+    return written.decode("ascii", "replace").strip()
+
+
+def recorded_holder(directory: Path, lock_file_name: str = LOCK_FILE_NAME) -> int | None:
+    """The process id the last holder of `directory`'s lock wrote in it, None without one.
+    Read without taking the lock (a test of it could refuse a launcher starting that moment):
+    the process may have ended since, and its id gone to another."""
+    try:
+        return int(_pid_text((directory / lock_file_name).read_bytes()[:32]))
+    except (OSError, ValueError):
+        return None

@@ -35,8 +35,7 @@ def _recording(tmp_path: Path) -> Path:
 
     path = tmp_path / "run.rrd"
     path.write_bytes(b"RRF2" + bytes(60))
-    if not looks_like_recording(path):
-        pytest.skip("no stand-in for a recording's start")
+    assert looks_like_recording(path)  # else the refusals below would be of another kind
     return path
 
 
